@@ -1,0 +1,299 @@
+"""Membrane parameters: a typed, validated object with YAML I/O (SI units).
+
+The fields follow Tables I and II of the paper. Every quantity is stored in SI
+units and the unit is part of the field name where it is not dimensionless:
+
+========================  ==========================  ======================
+field                     paper symbol                unit
+========================  ==========================  ======================
+prestretch                lambda_p (Table I)          -
+thickness_m               z0 (Table I)                m
+plate_radius_m            r (Table I)                 m
+electrode_width_m         l0 (Table I)                m
+mass_kg                   m (eq. 5)                   kg
+relative_permittivity     eps_r (eq. 6)               -
+k1_Pa                     k1 (eq. 11)                 Pa
+eta1_Pa_s                 eta1 (eq. 11)               Pa s
+eta2_Pa_s                 eta2 (eq. 12)               Pa s
+beta_Pa                   beta_1..3 (eqs. 8, 10)      Pa
+gamma_Pa                  gamma_1..3 (eqs. 9, 10)     Pa
+breakdown_field_V_per_m   dielectric breakdown        V/m
+gravity_m_per_s2          g (eq. 5)                   m/s^2
+vacuum_permittivity_F_per_m  eps0 (eq. 6)             F/m
+========================  ==========================  ======================
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+__all__ = [
+    "MembraneParameters",
+    "ParameterError",
+    "PRESET_NAMES",
+    "preset",
+    "preset_path",
+    "config_dir",
+    "load_parameters",
+]
+
+PRESET_NAMES = ("LP1", "A1", "A2")
+
+
+class ParameterError(ValueError):
+    """A parameter set is invalid. The message names the field and the fix."""
+
+
+@dataclass(frozen=True)
+class MembraneParameters:
+    """Parameters of the mass-loaded circular DEA model (paper eqs. 1-12).
+
+    Instances are immutable; use :meth:`replace` to derive a modified copy.
+    Construction validates every field and raises :class:`ParameterError`
+    naming the offending field.
+    """
+
+    name: str
+    prestretch: float
+    thickness_m: float
+    plate_radius_m: float
+    electrode_width_m: float
+    mass_kg: float
+    relative_permittivity: float
+    k1_Pa: float
+    eta1_Pa_s: float
+    eta2_Pa_s: float
+    beta_Pa: tuple[float, float, float]
+    gamma_Pa: tuple[float, float, float]
+    breakdown_field_V_per_m: float = 100e6
+    gravity_m_per_s2: float = 9.81
+    vacuum_permittivity_F_per_m: float = 8.85e-12
+    notes: str = field(default="", compare=False)
+
+    # ------------------------------------------------------------------ checks
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ParameterError("field 'name': must be a non-empty string")
+        for key in ("beta_Pa", "gamma_Pa"):
+            value = getattr(self, key)
+            try:
+                values = tuple(float(v) for v in value)
+            except (TypeError, ValueError):
+                raise ParameterError(
+                    f"field '{key}': must be a list of three numbers in Pa, got {value!r}"
+                ) from None
+            if len(values) != 3:
+                raise ParameterError(
+                    f"field '{key}': must have exactly 3 Ogden coefficients (i = 1, 2, 3), "
+                    f"got {len(values)}"
+                )
+            for i, v in enumerate(values):
+                if not math.isfinite(v):
+                    raise ParameterError(f"field '{key}[{i}]': must be finite, got {v}")
+            object.__setattr__(self, key, values)
+        for f in dataclasses.fields(self):
+            if f.name in ("name", "notes", "beta_Pa", "gamma_Pa"):
+                continue
+            value = getattr(self, f.name)
+            if isinstance(value, bool):
+                raise ParameterError(f"field '{f.name}': must be a number, got {value!r}")
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise ParameterError(
+                    f"field '{f.name}': must be a number, got {value!r}"
+                ) from None
+            if not math.isfinite(value):
+                raise ParameterError(f"field '{f.name}': must be finite, got {value}")
+            object.__setattr__(self, f.name, value)
+        positive = (
+            "prestretch", "thickness_m", "plate_radius_m", "electrode_width_m",
+            "relative_permittivity", "k1_Pa", "eta1_Pa_s", "breakdown_field_V_per_m",
+            "vacuum_permittivity_F_per_m",
+        )
+        for key in positive:
+            if getattr(self, key) <= 0.0:
+                raise ParameterError(f"field '{key}': must be > 0, got {getattr(self, key)}")
+        if self.mass_kg < 0.0:
+            raise ParameterError(f"field 'mass_kg': must be >= 0, got {self.mass_kg}")
+        if self.eta2_Pa_s < 0.0:
+            raise ParameterError(f"field 'eta2_Pa_s': must be >= 0, got {self.eta2_Pa_s}")
+        if self.gravity_m_per_s2 < 0.0:
+            raise ParameterError(
+                f"field 'gravity_m_per_s2': must be >= 0, got {self.gravity_m_per_s2}"
+            )
+        # Unit slips: SI values far outside the physical range of a DEA.
+        unit_checks = (
+            ("thickness_m", 1e-7, 1e-2, "micrometres are 1e-6 m: 35 um -> 3.5e-05"),
+            ("electrode_width_m", 1e-4, 1.0, "millimetres are 1e-3 m: 17 mm -> 0.017"),
+            ("plate_radius_m", 1e-5, 1.0, "millimetres are 1e-3 m: 4.5 mm -> 0.0045"),
+            ("mass_kg", 0.0, 10.0, "grams are 1e-3 kg: 3 g -> 0.003"),
+            ("relative_permittivity", 1.0, 1e4, "eps_r is dimensionless, about 2-10"),
+        )
+        for key, low, high, hint in unit_checks:
+            value = getattr(self, key)
+            if not (low <= value <= high):
+                raise ParameterError(
+                    f"field '{key}': {value} is outside [{low}, {high}]; SI units expected ({hint})"
+                )
+
+    # ------------------------------------------------------------- derived
+    @property
+    def c1bar_m(self) -> float:
+        """c1bar = 2 pi r z0 / l0 in m (paper, after eq. 18): 2 pi r z sin(theta) = c1bar d/s(d)."""
+        return 2.0 * math.pi * self.plate_radius_m * self.thickness_m / self.electrode_width_m
+
+    @property
+    def c2_Pa_per_V2(self) -> float:
+        """c2 = -eps0 eps_r / z0^2 in Pa/V^2 (eq. 6); sigma_Maxwell = c2 s(d) u^2."""
+        return -self.vacuum_permittivity_F_per_m * self.relative_permittivity / self.thickness_m**2
+
+    @property
+    def relaxation_time_s(self) -> float:
+        """Time constant eta1/k1 of the viscoelastic branch (eq. 11), s."""
+        return self.eta1_Pa_s / self.k1_Pa
+
+    @property
+    def prestress_Pa(self) -> float:
+        """Hyperelastic stress of the flat membrane, sigma_h(lambda_r = 1) = sum(beta - gamma) (eq. 10)."""
+        return sum(self.beta_Pa) - sum(self.gamma_Pa)
+
+    def breakdown_voltage_V(self) -> float:
+        """Voltage at the breakdown field across the undeformed thickness z0, V."""
+        return self.breakdown_field_V_per_m * self.thickness_m
+
+    def max_safe_voltage_V(self, margin: float = 0.9) -> float:
+        """Breakdown voltage times a safety margin in (0, 1], V."""
+        if not (0.0 < margin <= 1.0):
+            raise ParameterError(f"margin must be in (0, 1], got {margin}")
+        return margin * self.breakdown_voltage_V()
+
+    @staticmethod
+    def ogden_beta_gamma_from_mu(mu_Pa, prestretch: float):
+        """beta_i = mu_i lambda_p^(2i), gamma_i = mu_i lambda_p^(-4i) (eqs. 8-9)."""
+        mu = [float(m) for m in mu_Pa]
+        beta = tuple(m * prestretch ** (2 * (i + 1)) for i, m in enumerate(mu))
+        gamma = tuple(m * prestretch ** (-4 * (i + 1)) for i, m in enumerate(mu))
+        return beta, gamma
+
+    def replace(self, **changes: Any) -> "MembraneParameters":
+        """A validated copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------------ I/O
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dictionary (lists for the Ogden coefficients), as written to YAML."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "notes" and not value:
+                continue
+            out[f.name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "parameters") -> "MembraneParameters":
+        """Build from a mapping; unknown or missing keys raise :class:`ParameterError`."""
+        if not isinstance(data, Mapping):
+            raise ParameterError(
+                f"{source}: expected a mapping of field: value, got {type(data).__name__}"
+            )
+        known = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - set(known))
+        if unknown:
+            raise ParameterError(
+                f"{source}: unknown field(s) {unknown}; allowed fields are {sorted(known)}"
+            )
+        required = [
+            f.name for f in dataclasses.fields(cls)
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        ]
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise ParameterError(
+                f"{source}: missing field(s) {missing}; every membrane file needs {required}"
+            )
+        try:
+            return cls(**dict(data))
+        except ParameterError as exc:
+            raise ParameterError(f"{source}: {exc}") from None
+
+    def to_yaml(self, path: str | Path | None = None, header: str | None = None) -> str:
+        """Write YAML (SI units, documented in a header comment); return the text."""
+        lines = [
+            "# dea_ros membrane parameters, SI units (m, kg, Pa, Pa s, V/m).",
+            "# Fields: see dea_ros.model.parameters; paper eqs. 1-12, Tables I-II.",
+        ]
+        if header:
+            lines += [f"# {line}" for line in header.splitlines()]
+        text = "\n".join(lines) + "\n" + yaml.safe_dump(self.to_dict(), sort_keys=False)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "MembraneParameters":
+        """Load and validate a parameters YAML file.
+
+        The file may hold the fields at the top level or under a ``membrane:``
+        key (so a params file can carry other sections too).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise ParameterError(
+                f"{path}: no such parameters file; give a YAML path or a preset name {PRESET_NAMES}"
+            )
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise ParameterError(f"{path}: not valid YAML ({exc})") from None
+        if isinstance(data, Mapping) and "membrane" in data and isinstance(data["membrane"], Mapping):
+            data = data["membrane"]
+        return cls.from_dict(data, source=str(path))
+
+
+def config_dir() -> Path:
+    """The package's config folder (source tree, installed share/, or ament index)."""
+    here = Path(__file__).resolve()
+    candidates = [here.parents[2] / "config", here.parent.parent / "config"]
+    try:  # installed with colcon / ament: share/dea_ros/config
+        from ament_index_python.packages import get_package_share_directory  # type: ignore
+
+        candidates.append(Path(get_package_share_directory("dea_ros")) / "config")
+    except Exception:  # noqa: BLE001 - ament index absent outside ROS
+        pass
+    import sys
+
+    candidates.append(Path(sys.prefix) / "share" / "dea_ros" / "config")
+    for c in candidates:
+        if (c / "membranes").is_dir():
+            return c
+    raise FileNotFoundError(
+        "dea_ros config folder not found; looked in " + ", ".join(str(c) for c in candidates)
+    )
+
+
+def preset_path(name: str) -> Path:
+    """Path of a preset membrane YAML (LP1, A1, A2)."""
+    key = name.strip().upper()
+    if key not in PRESET_NAMES:
+        raise ParameterError(f"unknown membrane preset {name!r}; choose one of {PRESET_NAMES}")
+    return config_dir() / "membranes" / f"{key}.yaml"
+
+
+def preset(name: str) -> MembraneParameters:
+    """The paper's membrane LP1, A1 or A2 (Tables I-II, mass 3 g)."""
+    return MembraneParameters.from_yaml(preset_path(name))
+
+
+def load_parameters(name_or_path: str | Path) -> MembraneParameters:
+    """A preset name (LP1, A1, A2) or a path to a parameters YAML."""
+    text = str(name_or_path)
+    if text.strip().upper() in PRESET_NAMES and not Path(text).is_file():
+        return preset(text)
+    return MembraneParameters.from_yaml(text)

@@ -1,0 +1,228 @@
+"""Voltage inputs u(t) in V: steps, sines, sampled arrays, and periodic inputs for harmonic balance.
+
+Transient signals are callables ``u(t)`` (vectorised) with a list of
+``breakpoints`` (times where u or its slope jumps) so the adaptive integrator
+can restart there. Periodic inputs are functions of the phase
+``theta = omega t`` in [0, 2 pi) with a frequency, as harmonic balance needs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = [
+    "VoltageSignal", "ConstantVoltage", "StepVoltage", "SineVoltage", "SampledVoltage",
+    "PeriodicInput", "SinePeriodic", "SampledPeriodic", "check_voltage",
+]
+
+
+def check_voltage(value, name: str = "voltage_V") -> np.ndarray:
+    """Reject NaN/inf voltages with a message naming the argument."""
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite (got NaN or inf)")
+    if np.max(np.abs(arr), initial=0.0) > 1e6:
+        raise ValueError(
+            f"{name}: {np.max(np.abs(arr)):.3g} V is beyond any DEA amplifier; volts expected "
+            "(2.5 kV -> 2500)"
+        )
+    return arr
+
+
+class VoltageSignal:
+    """Base class of transient inputs: ``signal(t)`` in V, ``breakpoints`` in s."""
+
+    breakpoints: tuple = ()
+
+    def __call__(self, t):  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class ConstantVoltage(VoltageSignal):
+    voltage_V: float
+
+    def __post_init__(self):
+        check_voltage(self.voltage_V)
+
+    def __call__(self, t):
+        return np.full(np.shape(t), float(self.voltage_V)) if np.ndim(t) else float(self.voltage_V)
+
+
+@dataclass(frozen=True)
+class StepVoltage(VoltageSignal):
+    """u = initial_V for t < step_time_s, final_V afterwards."""
+
+    final_V: float
+    step_time_s: float = 0.0
+    initial_V: float = 0.0
+
+    def __post_init__(self):
+        check_voltage([self.final_V, self.initial_V])
+
+    @property
+    def breakpoints(self):
+        return (float(self.step_time_s),)
+
+    def __call__(self, t):
+        return np.where(np.asarray(t) < self.step_time_s, self.initial_V, self.final_V)
+
+
+@dataclass(frozen=True)
+class SineVoltage(VoltageSignal):
+    """u = offset_V + amplitude_V sin(2 pi f t + phase_rad)."""
+
+    amplitude_V: float
+    frequency_Hz: float
+    offset_V: float = 0.0
+    phase_rad: float = 0.0
+
+    def __post_init__(self):
+        check_voltage([self.amplitude_V, self.offset_V])
+        if not (np.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
+            raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
+
+    def __call__(self, t):
+        return self.offset_V + self.amplitude_V * np.sin(
+            2 * np.pi * self.frequency_Hz * np.asarray(t) + self.phase_rad
+        )
+
+
+@dataclass(frozen=True)
+class SampledVoltage(VoltageSignal):
+    """A recorded voltage: samples at increasing times, linear interpolation or zero-order hold.
+
+    Before the first sample the first value holds, after the last the last.
+    """
+
+    time_s: np.ndarray
+    voltage_V: np.ndarray
+    hold: str = "linear"
+
+    def __post_init__(self):
+        t = np.asarray(self.time_s, dtype=float).reshape(-1)
+        u = check_voltage(self.voltage_V, "voltage_V").reshape(-1)
+        if t.size != u.size:
+            raise ValueError(f"time_s and voltage_V: lengths differ ({t.size} vs {u.size})")
+        if t.size < 1 or not np.all(np.isfinite(t)):
+            raise ValueError("time_s: needs at least one finite sample")
+        if np.any(np.diff(t) <= 0):
+            raise ValueError("time_s: must be strictly increasing")
+        if self.hold not in ("linear", "zoh"):
+            raise ValueError(f"hold: 'linear' or 'zoh', got {self.hold!r}")
+        object.__setattr__(self, "time_s", t)
+        object.__setattr__(self, "voltage_V", u)
+
+    @property
+    def breakpoints(self):
+        if self.hold == "zoh":
+            jumps = np.nonzero(np.diff(self.voltage_V))[0] + 1
+            return tuple(self.time_s[jumps])
+        return ()
+
+    def __call__(self, t):
+        t = np.asarray(t, dtype=float)
+        if self.hold == "linear":
+            return np.interp(t, self.time_s, self.voltage_V)
+        idx = np.clip(np.searchsorted(self.time_s, t, side="right") - 1, 0, self.time_s.size - 1)
+        return self.voltage_V[idx]
+
+
+# ---------------------------------------------------------------------------- periodic
+class PeriodicInput:
+    """A T-periodic voltage as a function of phase theta = 2 pi f t (rad)."""
+
+    frequency_Hz: float
+
+    @property
+    def omega(self) -> float:
+        return 2.0 * np.pi * self.frequency_Hz
+
+    def at_phase(self, theta):  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def with_frequency(self, frequency_Hz: float) -> "PeriodicInput":  # pragma: no cover
+        raise NotImplementedError
+
+    def as_signal(self) -> VoltageSignal:
+        """The same input as a transient signal u(t) for forward integration."""
+        inp = self
+
+        class _Signal(VoltageSignal):
+            def __call__(self, t):
+                return inp.at_phase(inp.omega * np.asarray(t, dtype=float))
+
+        return _Signal()
+
+    def u2_half_periodic(self, samples: int = 64) -> bool:
+        """True when u^2 has period T/2 (a sine without offset): the response then has only even harmonics."""
+        theta = np.linspace(0.0, np.pi, samples, endpoint=False)
+        a = self.at_phase(theta) ** 2
+        b = self.at_phase(theta + np.pi) ** 2
+        return bool(np.allclose(a, b, rtol=1e-12, atol=1e-9 * max(1.0, np.max(a))))
+
+    def mean_square_V2(self, samples: int = 256) -> float:
+        theta = np.linspace(0.0, 2 * np.pi, samples, endpoint=False)
+        return float(np.mean(self.at_phase(theta) ** 2))
+
+
+@dataclass(frozen=True)
+class SinePeriodic(PeriodicInput):
+    """u = offset_V + amplitude_V sin(theta), theta = 2 pi f t (the paper's excitation)."""
+
+    amplitude_V: float
+    frequency_Hz: float
+    offset_V: float = 0.0
+
+    def __post_init__(self):
+        check_voltage([self.amplitude_V, self.offset_V])
+        if not (np.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
+            raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
+
+    def at_phase(self, theta):
+        return self.offset_V + self.amplitude_V * np.sin(theta)
+
+    def with_frequency(self, frequency_Hz: float) -> "SinePeriodic":
+        return SinePeriodic(self.amplitude_V, float(frequency_Hz), self.offset_V)
+
+    def u2_half_periodic(self, samples: int = 64) -> bool:
+        return self.offset_V == 0.0 or self.amplitude_V == 0.0
+
+    def as_signal(self) -> VoltageSignal:
+        return SineVoltage(self.amplitude_V, self.frequency_Hz, self.offset_V)
+
+
+@dataclass(frozen=True)
+class SampledPeriodic(PeriodicInput):
+    """One period of a voltage sampled at equal phase steps (K samples over [0, T)).
+
+    Evaluated between samples by trigonometric (Fourier) interpolation.
+    """
+
+    voltage_V: np.ndarray
+    frequency_Hz: float
+    _coeffs: np.ndarray = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self):
+        u = check_voltage(self.voltage_V, "voltage_V").reshape(-1)
+        if u.size < 3:
+            raise ValueError("voltage_V: a sampled period needs at least 3 samples")
+        if not (np.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
+            raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
+        object.__setattr__(self, "voltage_V", u)
+        object.__setattr__(self, "_coeffs", np.fft.rfft(u) / u.size)
+
+    def at_phase(self, theta):
+        theta = np.asarray(theta, dtype=float)
+        c = self._coeffs
+        n = np.arange(c.size)
+        weights = np.full(c.size, 2.0)
+        weights[0] = 1.0
+        if self.voltage_V.size % 2 == 0:  # the Nyquist term is counted once
+            weights[-1] = 1.0
+        phase = np.multiply.outer(theta, n)
+        return np.real(np.exp(1j * phase) @ (weights * c))
+
+    def with_frequency(self, frequency_Hz: float) -> "SampledPeriodic":
+        return SampledPeriodic(self.voltage_V, float(frequency_Hz))

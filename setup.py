@@ -1,0 +1,43 @@
+"""ament_python package dea_ros (also pip-installable; ROS packages are NOT pip requirements)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "dea_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench", "bench.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml", "README.md"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config/membranes", glob("config/membranes/*.yaml")),
+        ("share/" + package_name + "/config/protocols", glob("config/protocols/*.yaml")),
+        ("share/" + package_name + "/launch", glob("launch/*.py")),
+    ],
+    # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2
+    # is sourced, from requirements-ros-wheels.txt: never from install_requires.
+    install_requires=[
+        "numpy>=1.24",
+        "scipy>=1.10",
+        "PyYAML>=6.0",
+        "matplotlib>=3.6",
+        "mousai==0.3.1",
+        "mcap>=1.1",
+        "mcap-ros2-support>=0.5",
+        "pyserial>=3.5",
+    ],
+    zip_safe=True,
+    maintainer="dea_ros developers",
+    maintainer_email="dea-ros@example.org",
+    description="DEA model, harmonic-balance identification and ROS 2 rig nodes",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "dea-ros = dea_ros.cli:main",
+        ],
+    },
+)
