@@ -294,6 +294,9 @@ def preset(name: str) -> MembraneParameters:
 def load_parameters(name_or_path: str | Path) -> MembraneParameters:
     """A preset name (LP1, A1, A2) or a path to a parameters YAML."""
     text = str(name_or_path)
-    if text.strip().upper() in PRESET_NAMES and not Path(text).is_file():
+    if Path(text).is_file():
+        return MembraneParameters.from_yaml(text)
+    looks_like_path = any(c in text for c in "/\\") or text.endswith((".yaml", ".yml"))
+    if not looks_like_path:
         return preset(text)
     return MembraneParameters.from_yaml(text)

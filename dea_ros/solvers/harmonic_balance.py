@@ -166,21 +166,35 @@ class PeriodicSolution:
 
     @property
     def stability(self) -> str:
-        """'stable', 'unstable (fold)', 'unstable (period-doubling)', 'unstable (torus)' or 'unknown'."""
+        """See :func:`classify_stability`."""
         return classify_stability(self.multipliers)
 
 
 def classify_stability(multipliers) -> str:
-    """Name the way a periodic solution is (un)stable from its Floquet multipliers."""
+    """Name the way a periodic solution is (un)stable from its Floquet multipliers.
+
+    * ``stable``: all |mu| < 1.
+    * ``unstable (saddle)``: an odd number of real multipliers > 1 (the middle
+      branch between two folds of a hysteresis loop).
+    * ``unstable (real pair)``: an even number of real multipliers > 1 (no
+      turning point; typically a complex pair that met on the real axis).
+    * ``unstable (period-doubling)``: a real multiplier < -1 (odd harmonics of
+      the excitation grow: the response period doubles).
+    * ``unstable (torus)``: a complex pair outside the unit circle (the
+      response becomes modulated / quasi-periodic).
+    """
     if multipliers is None:
         return "unknown"
     mu = np.asarray(multipliers)
-    k = int(np.argmax(np.abs(mu)))
-    if abs(mu[k]) < 1.0:
+    outside = mu[np.abs(mu) >= 1.0]
+    if outside.size == 0:
         return "stable"
-    if abs(mu[k].imag) > 1e-6 * abs(mu[k]):
+    real = np.abs(outside.imag) <= 1e-9 * np.abs(outside)
+    if np.any(real & (outside.real < 0)):
+        return "unstable (period-doubling)"
+    if np.any(~real):
         return "unstable (torus)"
-    return "unstable (period-doubling)" if mu[k].real < 0 else "unstable (fold)"
+    return "unstable (saddle)" if np.count_nonzero(real) % 2 else "unstable (real pair)"
 
 
 class CollocationSystem:
@@ -406,11 +420,27 @@ def solve_native(
                                            max_iter=max_iter)
                 total_it += it
         except HarmonicBalanceError as exc:
+            z = None
+            err = f"{err}; amplitude homotopy: {exc}"
+    if z is None:  # frequency continuation from a quarter of f (the branch of an upward sweep)
+        from .continuation import ContinuationError, frequency_sweep
+
+        f = periodic_input.frequency_Hz
+        try:
+            sweep = frequency_sweep(params, periodic_input, np.linspace(0.25 * f, f, 9),
+                                    n_harmonics=n_harmonics, use_symmetry=use_symmetry,
+                                    stability=False, tol=tol)
+        except (ContinuationError, HarmonicBalanceError) as exc:
             raise HarmonicBalanceError(
-                f"harmonic balance failed at f = {periodic_input.frequency_Hz:g} Hz with "
-                f"N = {n_harmonics}: {err}; amplitude homotopy: {exc}. Near a fold use a sweep "
-                "(continuation), or more harmonics."
+                f"harmonic balance failed at f = {f:g} Hz with N = {n_harmonics}: {err}; "
+                f"frequency continuation: {exc}"
             ) from None
+        at_f = [pt for pt in sweep.points if abs(pt.frequency_Hz - f) <= 1e-9 * f]
+        if not at_f:
+            raise HarmonicBalanceError(f"harmonic balance failed at f = {f:g} Hz: {err}")
+        z = system.to_z(at_f[0].solution.state)
+        total_it += sweep.branch_steps
+        res = float(np.max(np.abs(system.residual(z, omega, u2))))
     x = system.unscale(z)
     sol = PeriodicSolution(
         frequency_Hz=periodic_input.frequency_Hz,

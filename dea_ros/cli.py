@@ -1,0 +1,345 @@
+"""``dea-ros``: command line on top of the core (no ROS needed).
+
+Subcommands: ``equilibrium``, ``simulate``, ``sweep`` (model and solvers);
+``synth``, ``identify`` (identification); ``replay``, ``bag`` (MCAP logs, with
+ROS 2); ``rig`` (the whole rig on mock hardware). ``dea-ros CMD --help`` for each.
+Every command takes ``--membrane NAME`` (LP1, A1, A2) or ``--params FILE``,
+prints readable text by default and JSON with ``--json``. Errors exit with code
+2 and a message naming the problem.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "build_parser"]
+
+
+class CliError(Exception):
+    """A user-facing error: printed without a traceback, exit code 2."""
+
+
+# ------------------------------------------------------------------ helpers
+def add_membrane_args(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--membrane", metavar="NAME", help="preset membrane: LP1, A1 or A2 (default A2)")
+    group.add_argument("--params", metavar="FILE", help="parameters YAML (e.g. an identified params.yaml)")
+    parser.add_argument("--mass", type=float, metavar="KG", help="override the mass, kg (e.g. 0.003)")
+
+
+def load_membrane(args):
+    from .model import load_parameters
+
+    params = load_parameters(args.params if args.params else (args.membrane or "A2"))
+    if getattr(args, "mass", None) is not None:
+        params = params.replace(mass_kg=args.mass)
+    return params
+
+
+def finite(name: str, value: float, positive: bool = False) -> float:
+    if value is None or not math.isfinite(value) or (positive and value <= 0):
+        raise CliError(f"{name}: must be a {'positive ' if positive else ''}finite number, got {value}")
+    return value
+
+
+def json_default(obj):
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, complex):
+        return [obj.real, obj.imag]
+    raise TypeError(type(obj).__name__)
+
+
+def print_json(data) -> None:
+    print(json.dumps(data, indent=2, default=json_default, allow_nan=True))
+
+
+def matplotlib_pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# ------------------------------------------------------------- equilibrium
+def cmd_equilibrium(args) -> int:
+    from .model import static_equilibrium
+
+    params = load_membrane(args)
+    voltages = np.asarray(args.voltage, dtype=float)
+    for v in voltages:
+        finite("--voltage", v)
+    eq = static_equilibrium(params, voltages)
+    d = np.atleast_1d(eq.displacement_m)
+    k = np.atleast_1d(eq.stiffness_N_per_m)
+    rows = [
+        {"voltage_V": float(u), "displacement_m": float(di), "stiffness_N_per_m": float(ki)}
+        for u, di, ki in zip(voltages, d, k)
+    ]
+    if args.json:
+        print_json({"membrane": params.name, "mass_kg": params.mass_kg, "equilibria": rows})
+        return 0
+    print(f"Static equilibria of membrane {params.name}, mass {params.mass_kg * 1e3:g} g "
+          f"(viscoelastic strain relaxed, eq. 20)")
+    print(f"{'voltage [V]':>12} {'displacement [um]':>18} {'stiffness [N/m]':>16}")
+    for r in rows:
+        print(f"{r['voltage_V']:12.1f} {r['displacement_m'] * 1e6:18.3f} {r['stiffness_N_per_m']:16.3f}")
+    return 0
+
+
+# ---------------------------------------------------------------- simulate
+def cmd_simulate(args) -> int:
+    from .solvers.inputs import SampledVoltage, SineVoltage, StepVoltage
+    from .solvers.integrate import simulate
+
+    params = load_membrane(args)
+    duration = finite("--duration", args.duration, positive=True)
+    rate = finite("--rate", args.rate, positive=True)
+    if args.input_csv:
+        data = load_voltage_csv(args.input_csv)
+        signal = SampledVoltage(data[0], data[1], hold=args.hold)
+        label = f"voltage from {args.input_csv}"
+    elif args.sine is not None:
+        signal = SineVoltage(finite("--sine", args.sine), finite("--frequency", args.frequency, True),
+                             offset_V=finite("--offset", args.offset))
+        label = f"sine {args.sine:g} V at {args.frequency:g} Hz, offset {args.offset:g} V"
+    else:
+        step = 2200.0 if args.step is None else finite("--step", args.step)
+        signal = StepVoltage(step, finite("--step-time", args.step_time), initial_V=finite("--initial", args.initial))
+        label = f"step {args.initial:g} -> {step:g} V at t = {args.step_time:g} s"
+    resp = simulate(params, signal, duration, sample_rate_Hz=rate, method=args.method)
+    d = resp.displacement_m
+    summary = {
+        "membrane": params.name,
+        "input": label,
+        "method": args.method,
+        "samples": int(d.size),
+        "initial_displacement_m": float(d[0]),
+        "final_displacement_m": float(d[-1]),
+        "min_displacement_m": float(d.min()),
+        "max_displacement_m": float(d.max()),
+        "wall_time_s": resp.wall_time_s,
+    }
+    if args.out:
+        header = "time_s,voltage_V,displacement_m,viscoelastic_strain,velocity_m_per_s"
+        np.savetxt(args.out, np.column_stack([resp.time_s, resp.voltage_V, resp.state.T]),
+                   delimiter=",", header=header, comments="")
+        summary["csv"] = str(args.out)
+    if args.plot:
+        plt = matplotlib_pyplot()
+        fig, (ax1, ax2) = plt.subplots(2, 1, sharex=True, figsize=(7, 5))
+        ax1.plot(resp.time_s, resp.voltage_V / 1e3, color="tab:orange")
+        ax1.set_ylabel("voltage [kV]")
+        ax2.plot(resp.time_s, d * 1e3)
+        ax2.set_ylabel("displacement d [mm]")
+        ax2.set_xlabel("time [s]")
+        ax1.set_title(f"Membrane {params.name}: {label}")
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=120)
+        plt.close(fig)
+        summary["plot"] = str(args.plot)
+    if args.json:
+        print_json(summary)
+        return 0
+    print(f"Simulated membrane {params.name}: {label}, {duration:g} s at {rate:g} Hz ({args.method})")
+    print(f"  displacement: start {d[0] * 1e6:.3f} um, end {d[-1] * 1e6:.3f} um, "
+          f"range [{d.min() * 1e6:.3f}, {d.max() * 1e6:.3f}] um")
+    print(f"  wall time {resp.wall_time_s:.3f} s")
+    for key in ("csv", "plot"):
+        if key in summary:
+            print(f"  {key}: {summary[key]}")
+    return 0
+
+
+def load_voltage_csv(path: str):
+    p = Path(path)
+    if not p.is_file():
+        raise CliError(f"--input-csv: no such file {path}")
+    try:
+        data = np.genfromtxt(p, delimiter=",", names=True)
+    except Exception as exc:  # noqa: BLE001
+        raise CliError(f"{path}: not a CSV with a header row ({exc})") from None
+    names = data.dtype.names or ()
+    for col in ("time_s", "voltage_V"):
+        if col not in names:
+            raise CliError(f"{path}: needs columns time_s and voltage_V (SI units), found {list(names)}")
+    t, u = np.asarray(data["time_s"], float), np.asarray(data["voltage_V"], float)
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
+        bad = int(np.nonzero(~(np.isfinite(t) & np.isfinite(u)))[0][0]) + 2
+        raise CliError(f"{path}: NaN or empty value in time_s/voltage_V at line {bad}")
+    return t, u
+
+
+# ------------------------------------------------------------------ sweep
+def cmd_sweep(args) -> int:
+    from .solvers.continuation import frequency_sweep, sweep_independent
+    from .solvers.inputs import SinePeriodic
+
+    params = load_membrane(args)
+    fmin = finite("--fmin", args.fmin, True)
+    fmax = finite("--fmax", args.fmax, True)
+    if fmax <= fmin:
+        raise CliError(f"--fmax ({fmax}) must be larger than --fmin ({fmin})")
+    if args.points < 1:
+        raise CliError("--points: must be >= 1")
+    if args.harmonics < 1:
+        raise CliError("--harmonics: must be >= 1")
+    freqs = (np.geomspace(fmin, fmax, args.points) if args.spacing == "log"
+             else np.linspace(fmin, fmax, args.points))
+    inp = SinePeriodic(finite("--amplitude", args.amplitude), fmin, offset_V=finite("--offset", args.offset))
+    if args.method == "native":
+        result = frequency_sweep(params, inp, freqs, n_harmonics=args.harmonics, d0=args.d0,
+                                 stability=not args.no_stability)
+    else:
+        result = sweep_independent(params, inp, freqs, method=args.method, n_harmonics=args.harmonics,
+                                   d0=args.d0, stability=not args.no_stability)
+    out = result.to_dict()
+    out.update({"membrane": params.name, "amplitude_V": args.amplitude, "offset_V": args.offset})
+    if args.plot:
+        plot_sweep(result, params.name, args)
+        out["plot"] = str(args.plot)
+    if args.json:
+        print_json(out)
+        return 0
+    peak, tip = out["resonance_peak"], out["resonance_peak_branch"]
+    print(f"Frequency sweep of membrane {params.name}: {args.amplitude:g} V sine"
+          f"{'' if not args.offset else f' + {args.offset:g} V offset'}, {fmin:g}-{fmax:g} Hz, "
+          f"{args.points} frequencies, N = {args.harmonics} harmonics, method {args.method}")
+    print(f"d_rms per eq. 21 with d0 = {args.d0}"
+          f"{f' ({result.d0_m * 1e6:.3f} um)' if args.d0 == 'static' else ''}")
+    print(f"{'f [Hz]':>9} {'d_rms [um]':>11} {'mean d [um]':>12} {'stability':>28} {'iter':>5} {'ms':>7}")
+    for p in result.points:
+        print(f"{p.frequency_Hz:9.3f} {p.d_rms_m * 1e6:11.3f} {p.mean_displacement_m * 1e6:12.3f} "
+              f"{p.stability:>28} {p.iterations:5d} {p.wall_time_s * 1e3:7.2f}")
+    for f in result.folds:
+        print(f"fold (turning point) at {f.frequency_Hz:.4f} Hz, d_rms {f.d_rms_m * 1e6:.2f} um")
+    print(f"resonance peak (stable branch): {peak['frequency_Hz']:.3f} Hz, d_rms {peak['d_rms_m'] * 1e6:.2f} um")
+    print(f"branch maximum: {tip['frequency_Hz']:.3f} Hz, d_rms {tip['d_rms_m'] * 1e6:.2f} um")
+    unstable = [p for p in result.points if not p.stable]
+    if unstable:
+        print(f"{len(unstable)} unstable periodic solutions (no stable response of this kind there: "
+              "expect jumps, modulation or period doubling in an experiment)")
+    print(f"total wall time {result.wall_time_s:.3f} s")
+    if args.plot:
+        print(f"plot: {args.plot}")
+    return 0
+
+
+def plot_sweep(result, name: str, args) -> None:
+    plt = matplotlib_pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    f = result.frequencies_Hz
+    d = result.d_rms_m * 1e6
+    seg = np.array([p.segment for p in result.points])
+    stable = result.stable
+    for s in np.unique(seg):
+        k = seg == s
+        ax.plot(f[k], d[k], "-", color="0.75", lw=1, zorder=1)
+    ax.plot(f[stable], d[stable], ".", color="tab:blue", label="stable", zorder=2)
+    if (~stable).any():
+        ax.plot(f[~stable], d[~stable], "x", color="tab:red", label="unstable", zorder=3)
+    for fold in result.folds:
+        ax.plot(fold.frequency_Hz, fold.d_rms_m * 1e6, "o", mfc="none", color="k")
+    if result.folds:
+        ax.plot([], [], "o", mfc="none", color="k", label="fold")
+    ax.set_xlabel("excitation frequency [Hz]")
+    ax.set_ylabel("d_rms (eq. 21) [um]")
+    ax.set_title(f"Membrane {name}: {args.amplitude:g} V sine, N = {args.harmonics} ({args.method})")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(args.plot, dpi=120)
+    plt.close(fig)
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dea-ros",
+        description="DEA model, harmonic-balance solver and identification (SI units: V, m, s, kg).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    p = sub.add_parser("equilibrium", help="static displacement for given voltages (eq. 20)")
+    add_membrane_args(p)
+    p.add_argument("--voltage", type=float, nargs="+", default=[0.0, 2000.0, 2200.0, 2500.0],
+                   metavar="V", help="voltages in V (default: 0 2000 2200 2500)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_equilibrium)
+
+    p = sub.add_parser("simulate", help="forward integration of a step, a sine or a voltage CSV")
+    add_membrane_args(p)
+    p.add_argument("--step", type=float, metavar="V", help="step to this voltage (default 2200 V)")
+    p.add_argument("--initial", type=float, default=0.0, metavar="V", help="voltage before the step")
+    p.add_argument("--step-time", type=float, default=0.1, metavar="S", help="time of the step, s")
+    p.add_argument("--sine", type=float, metavar="V", help="sine amplitude in V (instead of a step)")
+    p.add_argument("--frequency", type=float, default=5.0, metavar="HZ", help="sine frequency")
+    p.add_argument("--offset", type=float, default=0.0, metavar="V", help="sine offset")
+    p.add_argument("--input-csv", metavar="FILE", help="CSV with columns time_s,voltage_V")
+    p.add_argument("--hold", choices=("linear", "zoh"), default="linear", help="interpolation of --input-csv")
+    p.add_argument("--duration", type=float, default=3.0, metavar="S", help="simulated time, s")
+    p.add_argument("--rate", type=float, default=1000.0, metavar="HZ", help="output sample rate")
+    p.add_argument("--method", default="DOP853", help="solve_ivp method (DOP853, RK45, Radau, LSODA)")
+    p.add_argument("--out", metavar="CSV", help="write the time series")
+    p.add_argument("--plot", metavar="PNG", help="write a plot of u(t) and d(t)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("sweep", help="frequency response by harmonic balance (continuation, stability)")
+    add_membrane_args(p)
+    p.add_argument("--amplitude", type=float, default=2500.0, metavar="V", help="sine amplitude, V")
+    p.add_argument("--offset", type=float, default=0.0, metavar="V", help="sine offset, V")
+    p.add_argument("--fmin", type=float, default=0.1, metavar="HZ")
+    p.add_argument("--fmax", type=float, default=20.0, metavar="HZ")
+    p.add_argument("--points", type=int, default=200, help="number of frequencies")
+    p.add_argument("--spacing", choices=("lin", "log"), default="lin")
+    p.add_argument("--harmonics", type=int, default=8, metavar="N",
+                   help="harmonics of the response frequency (2N+1 collocation points per period)")
+    p.add_argument("--method", choices=("native", "mousai", "integration"), default="native")
+    p.add_argument("--d0", choices=("static", "mean"), default="static",
+                   help="reference of eq. 21: static equilibrium at u=0 (paper) or the mean response")
+    p.add_argument("--no-stability", action="store_true", help="skip Floquet multipliers")
+    p.add_argument("--plot", metavar="PNG", help="write the frequency response (unstable parts marked)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_sweep)
+
+    for module in ("dea_ros.identify.commands", "dea_ros.bag.commands", "dea_ros.rig"):
+        try:
+            mod = __import__(module, fromlist=["register"])
+        except ImportError:
+            continue
+        register = getattr(mod, "register", None)
+        if register is not None:
+            register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    from .model import NoEquilibriumError, ParameterError
+    from .solvers.harmonic_balance import HarmonicBalanceError
+
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, ParameterError, NoEquilibriumError, HarmonicBalanceError, ValueError,
+            FileNotFoundError) as exc:
+        print(f"dea-ros {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"dea-ros {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""Common interface of the laser displacement sensors (real, emulated or mocked).
+
+The DEA rig measures the displacement ``d`` of the mass carried by the membrane
+with a laser triangulation sensor. Every backend (the Micro-Epsilon ILD1320 on a
+serial port, :class:`~dea_ros.hardware.ild1320_emulator.MockDisplacementSensor`,
+...) implements :class:`DisplacementSensor`, so the ROS node never depends on a
+particular device.
+
+Units: displacements in metres, times in seconds, rates in hertz.
+
+* :class:`DisplacementReading` -- one sample: ``(acquisition_time_s, value)``
+  where ``value`` is a displacement in metres (tare already subtracted) or a
+  :class:`MeasurementError` member when the sensor reported an error instead of
+  a distance (no target, target out of range, laser off, ...).
+* :class:`SensorError` / :class:`SensorDisconnected` -- exceptions raised by the
+  backends; ``SensorDisconnected`` means "no usable data stream" (serial port
+  error, port vanished, or silence for longer than the backend's timeout) and is
+  recoverable with :meth:`DisplacementSensor.reconnect`.
+
+This module imports nothing but the standard library.
+"""
+from __future__ import annotations
+
+import abc
+import enum
+import math
+from typing import NamedTuple, Optional, Union
+
+__all__ = [
+    "MeasurementError",
+    "DisplacementReading",
+    "SensorError",
+    "SensorDisconnected",
+    "DisplacementSensor",
+    "validated_tare_offset_m",
+]
+
+
+class MeasurementError(str, enum.Enum):
+    """Why a sample carries no displacement (named, never a raw number).
+
+    The names follow the error values of the Micro-Epsilon optoNCDT 1x20 family;
+    other backends reuse them with the same meaning.
+    """
+
+    #: The configured output data do not fit the baud rate (sensor run-time error).
+    DATA_RATE_TOO_HIGH = "data_rate_too_high"
+    #: No peak on the detector: no target, too little reflected light.
+    NO_PEAK = "no_peak"
+    #: Peak before the measuring range: target too close to the sensor.
+    TARGET_TOO_CLOSE = "target_too_close"
+    #: Peak behind the measuring range: target too far from the sensor.
+    TARGET_TOO_FAR = "target_too_far"
+    #: The measurement value cannot be calculated.
+    CANNOT_CALCULATE = "cannot_calculate"
+    #: The peak is too wide (e.g. strongly scattering or tilted target).
+    PEAK_TOO_WIDE = "peak_too_wide"
+    #: The laser is switched off.
+    LASER_OFF = "laser_off"
+    #: A raw value that is neither a valid distance nor a documented error code.
+    UNKNOWN_CODE = "unknown_code"
+
+
+class DisplacementReading(NamedTuple):
+    """One time-stamped sample, usable as the pair ``(acquisition_time_s, value)``.
+
+    ``acquisition_time_s`` is on the backend's monotonic clock
+    (``time.monotonic()`` for the serial and mock backends). ``value`` is the
+    displacement in metres with the tare offset subtracted, or a
+    :class:`MeasurementError`.
+    """
+
+    acquisition_time_s: float
+    value: Union[float, MeasurementError]
+
+    @property
+    def is_valid(self) -> bool:
+        """True when the sample carries a displacement (not an error)."""
+        return not isinstance(self.value, MeasurementError)
+
+    @property
+    def displacement_m(self) -> Optional[float]:
+        """Displacement in metres, or ``None`` for an error sample."""
+        return None if isinstance(self.value, MeasurementError) else float(self.value)
+
+    @property
+    def error(self) -> Optional[MeasurementError]:
+        """The error of an error sample, or ``None`` for a valid one."""
+        return self.value if isinstance(self.value, MeasurementError) else None
+
+
+class SensorError(RuntimeError):
+    """A displacement sensor operation failed (bad reply, not open, timeout, ...)."""
+
+
+class SensorDisconnected(SensorError):
+    """The sensor delivers no usable data: serial error, port gone, or silence.
+
+    Call :meth:`DisplacementSensor.reconnect` to recover.
+    """
+
+
+def validated_tare_offset_m(offset_m: float) -> float:
+    """Return ``offset_m`` as a float; raise ``ValueError`` unless it is finite."""
+    try:
+        value = float(offset_m)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"tare offset must be a number of metres, got {offset_m!r}") from exc
+    if not math.isfinite(value):
+        raise ValueError(f"tare offset must be finite, got {offset_m!r} m")
+    return value
+
+
+class DisplacementSensor(abc.ABC):
+    """Abstract displacement sensor delivering time-stamped batches of samples.
+
+    Lifecycle: ``open()`` -> repeated ``read_batch()`` -> ``close()``; also usable
+    as a context manager. ``read_batch`` never blocks for long: it returns what
+    has been acquired since the previous call (at most ``max_samples``).
+    Readings are displacements minus the software tare offset (see :meth:`tare`).
+    """
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Connect to the sensor and start acquisition. Raises :class:`SensorError`."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the sensor; safe to call more than once."""
+
+    @abc.abstractmethod
+    def read_batch(self, max_samples: int = 1000) -> list[DisplacementReading]:
+        """Return up to ``max_samples`` new readings, oldest first.
+
+        Raises :class:`SensorDisconnected` when the data stream is lost.
+        """
+
+    @abc.abstractmethod
+    def tare(self) -> float:
+        """Software zero: make the current displacement read as 0 m.
+
+        Returns the new tare offset in metres (subtracted from later readings).
+        """
+
+    @abc.abstractmethod
+    def set_measuring_rate(self, rate_hz: float) -> None:
+        """Set the measuring (sampling) rate in Hz; raises ``ValueError`` if unsupported."""
+
+    @abc.abstractmethod
+    def measuring_rate(self) -> float:
+        """Current measuring rate in Hz."""
+
+    @abc.abstractmethod
+    def is_connected(self) -> bool:
+        """True while the sensor is open and its data stream is alive."""
+
+    @property
+    @abc.abstractmethod
+    def tare_offset_m(self) -> float:
+        """Current software tare offset in metres (0 when never tared)."""
+
+    @abc.abstractmethod
+    def set_tare(self, offset_m: float) -> None:
+        """Set the tare offset explicitly (metres); ``0.0`` removes the tare.
+
+        Implementations validate with :func:`validated_tare_offset_m`.
+        """
+
+    def reconnect(self) -> None:
+        """Re-establish the connection (default: ``close()`` then ``open()``)."""
+        self.close()
+        self.open()
+
+    def __enter__(self) -> "DisplacementSensor":
+        self.open()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()

@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Create/refresh the project's virtual environment in .venv (idempotent).
+#
+# * With ROS 2 sourced (ROS_DISTRO set, e.g. a lab PC with apt's Humble or newer):
+#   the venv sees the system site-packages (rclpy and messages from /opt/ros) and
+#   NO ros-* wheels are installed.
+# * Without ROS 2: the ROS 2 Python wheels from PyPI (requirements-ros-wheels.txt).
+# Then the package itself (editable) and the test tools.
+set -euo pipefail
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$here"
+venv="${DEA_ROS_VENV:-$here/.venv}"
+python="${PYTHON:-python3}"
+stamp="$venv/.dea_ros_setup_stamp"
+want="$(cat requirements.txt requirements-dev.txt requirements-ros-wheels.txt setup.py | sha256sum | cut -c1-16)-${ROS_DISTRO:-pypi}"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$venv/bin/python" ]; then
+  exit 0
+fi
+echo "[setup] creating the environment in $venv (once; about a minute)" >&2
+if [ -n "${ROS_DISTRO:-}" ]; then
+  "$python" -m venv --system-site-packages "$venv"
+else
+  "$python" -m venv "$venv"
+fi
+pip() { "$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+pip install -U pip
+if [ -z "${ROS_DISTRO:-}" ]; then
+  echo "[setup] no ROS 2 sourced: installing the ROS 2 Python wheels from PyPI" >&2
+  pip install -r requirements-ros-wheels.txt
+fi
+pip install -r requirements.txt -r requirements-dev.txt
+pip install -e .
+"$venv/bin/python" - <<'PY'
+import importlib, sys
+missing = [m for m in ("numpy", "scipy", "yaml", "mcap", "mcap_ros2", "mousai", "rclpy", "std_msgs", "sensor_msgs")
+           if importlib.util.find_spec(m) is None]
+if missing:
+    sys.exit(f"[setup] missing after install: {missing}")
+PY
+echo "$want" > "$stamp"
+echo "[setup] done" >&2
