@@ -1,0 +1,185 @@
+"""model_node: predicts the displacement from the applied voltage in real time.
+
+Subscribes ``voltage`` (sensor_msgs/BatteryState, the amplifier's applied voltage),
+advances the model with the core's fixed-step RK4 stepper
+(:class:`dea_ros.solvers.integrate.RealTimeStepper`), and publishes
+``displacement_predicted`` (sensor_msgs/Range, m):
+
+* on every voltage message: the model is advanced to the message stamp with the
+  previous voltage held (zero-order hold, like the DAQ), the new voltage is
+  latched and the prediction is published with the message's stamp (so
+  prediction and measurement line up in a bag);
+* a timer at ``rate_hz`` keeps publishing with the held voltage when voltage
+  messages stop or are slower than the sample rate.
+
+Parameters: ``params_file`` (a preset name LP1/A1/A2 or a parameters YAML, e.g.
+an identified params.yaml), ``rate_hz``, ``dt_s`` (integration step, default
+1/rate_hz), ``max_catch_up_s``. Services: ``~/reset`` (std_srvs/Trigger: back to
+the static equilibrium at the held voltage), ``~/reload`` (reload params_file).
+Falling behind (a tick later than 2 periods, or a catch-up longer than
+``max_catch_up_s``) is counted, logged (throttled) and reported on /diagnostics.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from sensor_msgs.msg import BatteryState, Range
+from std_srvs.srv import Trigger
+
+from ..model import ParameterError, load_parameters
+from ..solvers.integrate import RealTimeStepper
+from .common import (
+    SENSOR_QOS,
+    TOPIC_DISPLACEMENT_PREDICTED,
+    TOPIC_VOLTAGE,
+    declare_float,
+    declare_str,
+    make_range,
+)
+
+__all__ = ["ModelNode", "main"]
+
+
+class ModelNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("model_node", **kwargs)
+        self.params_file = declare_str(self, "params_file", "A2",
+                                       "membrane preset (LP1, A1, A2) or path to a parameters YAML")
+        self.rate_hz = declare_float(self, "rate_hz", 1000.0, "publication rate without input, Hz", 1.0, 20000.0)
+        dt = declare_float(self, "dt_s", 0.0, "RK4 step, s (0: 1/rate_hz)", 0.0, 0.01)
+        self.dt_s = dt if dt > 0 else 1.0 / self.rate_hz
+        self.max_catch_up_s = declare_float(self, "max_catch_up_s", 1.0,
+                                            "longest gap integrated in one go; longer gaps reset the model", 0.0, 60.0)
+        self.frame_id = declare_str(self, "frame_id", "dea_model", "frame_id of the predictions")
+        self.stepper = self._make_stepper(self.params_file)
+        self.voltage_V = 0.0
+        self.model_time_ns: int | None = None
+        self.dt_ns = max(1, int(round(self.dt_s * 1e9)))
+        self.late_ticks = 0
+        self.resets_for_gaps = 0
+        self.published = 0
+        self.max_compute_s = 0.0
+        self.pub = self.create_publisher(Range, TOPIC_DISPLACEMENT_PREDICTED, SENSOR_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_voltage, SENSOR_QOS)
+        self.create_service(Trigger, "~/reset", self.on_reset)
+        self.create_service(Trigger, "~/reload", self.on_reload)
+        self.timer = self.create_timer(1.0 / self.rate_hz, self.on_timer)
+        self.create_timer(1.0, self.publish_diagnostics)
+        self.get_logger().info(
+            f"model {self.stepper.params.name} from '{self.params_file}', RK4 dt {self.dt_s * 1e3:g} ms, "
+            f"publishing {self.pub.topic_name}"
+        )
+
+    # ------------------------------------------------------------ model
+    def _make_stepper(self, source: str) -> RealTimeStepper:
+        try:
+            params = load_parameters(source)
+        except (ParameterError, FileNotFoundError) as exc:
+            raise SystemExit(f"model_node: parameter 'params_file': {exc}") from None
+        return RealTimeStepper(params, dt_s=self.dt_s)
+
+    def now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def advance_to(self, t_ns: int) -> None:
+        """Integrate with the held voltage from model time to t_ns (integer ns: no float drift at epoch times)."""
+        if self.model_time_ns is None or t_ns < self.model_time_ns:
+            self.model_time_ns = t_ns  # first message, or time went backwards (bag loop): no jump
+            return
+        gap_ns = t_ns - self.model_time_ns
+        if gap_ns > self.max_catch_up_s * 1e9:
+            self.resets_for_gaps += 1
+            self.get_logger().warning(
+                f"gap of {gap_ns * 1e-9:.3f} s in the voltage input: model reset to equilibrium at "
+                f"{self.voltage_V:.1f} V",
+                throttle_duration_sec=5.0,
+            )
+            self.stepper.reset(self.voltage_V)
+            self.model_time_ns = t_ns
+            return
+        n, rest_ns = divmod(gap_ns, self.dt_ns)
+        for _ in range(n):
+            self.stepper.step(self.voltage_V, self.dt_s)
+        if rest_ns > 0:
+            self.stepper.step(self.voltage_V, rest_ns * 1e-9)
+        self.model_time_ns = t_ns
+
+    def publish_prediction(self, t_ns: int) -> None:
+        self.pub.publish(make_range(self.stepper.displacement_m, t_ns, self.frame_id))
+        self.published += 1
+
+    # --------------------------------------------------------- callbacks
+    def on_voltage(self, msg: BatteryState) -> None:
+        t0 = time.perf_counter()
+        u = float(msg.voltage) if msg.present else 0.0
+        if not math.isfinite(u):
+            return
+        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.advance_to(t_ns)
+        self.voltage_V = u
+        self.publish_prediction(t_ns)
+        self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
+
+    def on_timer(self) -> None:
+        now = self.now_ns()
+        if self.model_time_ns is None:
+            self.model_time_ns = now
+            return
+        behind_s = (now - self.model_time_ns) * 1e-9
+        if behind_s > 2.0 / self.rate_hz:
+            if behind_s > 4.0 / self.rate_hz:
+                self.late_ticks += 1
+            self.advance_to(now)
+            self.publish_prediction(now)
+
+    def on_reset(self, _req, resp):
+        self.stepper.reset(self.voltage_V)
+        resp.success = True
+        resp.message = f"model reset to the static equilibrium at {self.voltage_V:.1f} V"
+        return resp
+
+    def on_reload(self, _req, resp):
+        source = self.get_parameter("params_file").value
+        try:
+            self.stepper = RealTimeStepper(load_parameters(source), dt_s=self.dt_s, initial_voltage_V=self.voltage_V)
+        except (ParameterError, FileNotFoundError, ValueError) as exc:
+            resp.success = False
+            resp.message = f"params_file '{source}': {exc}"
+            return resp
+        resp.success = True
+        resp.message = f"loaded {self.stepper.params.name} from '{source}'"
+        return resp
+
+    def publish_diagnostics(self) -> None:
+        status = DiagnosticStatus()
+        status.name = f"{self.get_name()}: model"
+        status.hardware_id = self.stepper.params.name
+        status.level = DiagnosticStatus.WARN if self.late_ticks or self.resets_for_gaps else DiagnosticStatus.OK
+        status.message = "falling behind" if self.late_ticks else "ok"
+        status.values = [
+            KeyValue(key="published", value=str(self.published)),
+            KeyValue(key="late_ticks", value=str(self.late_ticks)),
+            KeyValue(key="resets_for_gaps", value=str(self.resets_for_gaps)),
+            KeyValue(key="max_compute_ms", value=f"{self.max_compute_s * 1e3:.3f}"),
+            KeyValue(key="voltage_V", value=f"{self.voltage_V:.1f}"),
+            KeyValue(key="displacement_m", value=f"{self.stepper.displacement_m:.9f}"),
+        ]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self.diag_pub.publish(arr)
+
+
+def main(args=None) -> None:
+    from .runner import run_node
+
+    run_node(ModelNode, args)
+
+
+if __name__ == "__main__":
+    main()

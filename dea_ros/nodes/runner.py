@@ -1,0 +1,62 @@
+"""Running nodes: one node per process (``ros2 run``), or several on one executor (the rig).
+
+Both paths install SIGINT/SIGTERM handling that lets a node's ``shutdown_safely()``
+(the amplifier ramps its voltage to 0 V) run before rclpy goes down.
+"""
+from __future__ import annotations
+
+import signal
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+
+__all__ = ["run_node", "run_nodes"]
+
+
+def _safe_shutdown(nodes) -> None:
+    for node in nodes:
+        hook = getattr(node, "shutdown_safely", None)
+        if hook is not None:
+            try:
+                hook()
+            except Exception as exc:  # noqa: BLE001 - keep shutting the others down
+                print(f"{node.get_name()}: shutdown_safely failed: {exc}", file=sys.stderr)
+
+
+def run_nodes(factories, args=None, threads: int = 1) -> None:
+    """Create the nodes (callables returning a Node) and spin them until SIGINT/SIGTERM."""
+    rclpy.init(args=args)
+    nodes = []
+    stop = {"requested": False}
+
+    def on_signal(signum, _frame):
+        stop["requested"] = True
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    executor = MultiThreadedExecutor(threads) if threads > 1 else SingleThreadedExecutor()
+    try:
+        for factory in factories:
+            node = factory()
+            nodes.append(node)
+            executor.add_node(node)
+        while rclpy.ok() and not stop["requested"]:
+            executor.spin_once(timeout_sec=0.1)
+            if any(getattr(n, "finished", False) for n in nodes):
+                break
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        _safe_shutdown(nodes)
+        for s, h in old.items():
+            signal.signal(s, h)
+        for node in nodes:
+            executor.remove_node(node)
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+def run_node(factory, args=None) -> None:
+    """``ros2 run dea_ros <node>`` entry point body."""
+    run_nodes([factory], args=args if args is not None else sys.argv)

@@ -1,0 +1,79 @@
+"""model_node over real rclpy pub/sub: predictions equal the core stepper, services, diagnostics."""
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from sensor_msgs.msg import BatteryState, Range
+from std_srvs.srv import Trigger
+
+from dea_ros.model import preset, static_equilibrium
+from dea_ros.nodes.common import SENSOR_QOS, make_voltage_state, stamp_to_s
+from dea_ros.nodes.model_node import ModelNode
+from dea_ros.solvers.integrate import RealTimeStepper
+
+
+def test_predictions_follow_the_core_stepper(ros_context, spin_until):
+    node = ModelNode(context=ros_context, parameter_overrides=[
+        rclpy_param("params_file", "A2"), rclpy_param("rate_hz", 1000.0)])
+    peer = Node("peer", context=ros_context)
+    pub = peer.create_publisher(BatteryState, "voltage", SENSOR_QOS)
+    got = []
+    peer.create_subscription(Range, "displacement_predicted", got.append, SENSOR_QOS)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(peer)
+    assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and peer.count_publishers("displacement_predicted") > 0)
+    # a voltage step stamped in the far future, so the timer path never interferes
+    t0 = round(node.now_ns() * 1e-9) + 1.0e6
+    voltages = np.where(np.arange(300) < 50, 0.0, 2200.0)
+    def n_pred():
+        return len([m for m in got if stamp_to_s(m.header.stamp) >= t0])
+
+    for k, u in enumerate(voltages):  # one at a time: best-effort QoS may drop a burst
+        pub.publish(make_voltage_state(u, int(t0 * 1e9) + k * 1_000_000, True))
+        assert spin_until(ex, lambda: n_pred() >= k + 1, timeout_s=5.0)
+    pred = sorted((stamp_to_s(m.header.stamp), m.range) for m in got if stamp_to_s(m.header.stamp) >= t0)
+    stepper = RealTimeStepper(preset("A2"), dt_s=1e-3)
+    expected = [stepper.displacement_m] + [stepper.step(u) for u in voltages[:-1]]
+    d = np.array([r for _, r in pred[:300]])
+    # Range.range is float32: agreement to float32 precision of ~1 mm (1e-10 m)
+    np.testing.assert_allclose(d, expected, atol=2e-10)
+    assert d[-1] > static_equilibrium(preset("A2"), 0.0).displacement_m + 50e-6
+    ex.shutdown()
+    node.destroy_node()
+    peer.destroy_node()
+
+
+def test_reset_and_reload_services(ros_context, tmp_path, spin_until):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\n")
+    node = ModelNode(context=ros_context, parameter_overrides=[rclpy_param("params_file", "LP1")])
+    peer = Node("peer2", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(peer)
+    reset = peer.create_client(Trigger, "/model_node/reset")
+    reload_ = peer.create_client(Trigger, "/model_node/reload")
+    assert spin_until(ex, lambda: reset.service_is_ready() and reload_.service_is_ready())
+    fut = reset.call_async(Trigger.Request())
+    assert spin_until(ex, fut.done)
+    assert fut.result().success
+    node.set_parameters([rclpy_param("params_file", str(bad))])
+    fut = reload_.call_async(Trigger.Request())
+    assert spin_until(ex, fut.done)
+    assert not fut.result().success and "missing field" in fut.result().message
+    assert node.stepper.params.name == "LP1"  # a bad file leaves the running model untouched
+    ex.shutdown()
+    node.destroy_node()
+    peer.destroy_node()
+
+
+def rclpy_param(name, value):
+    from rclpy.parameter import Parameter
+
+    return Parameter(name, value=value)
+
+
+def test_bad_params_file_stops_with_a_clear_message(ros_context):
+    with pytest.raises(SystemExit, match="params_file"):
+        ModelNode(context=ros_context, parameter_overrides=[rclpy_param("params_file", "Z9")])
