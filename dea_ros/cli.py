@@ -228,6 +228,10 @@ def cmd_sweep(args) -> int:
     if unstable:
         print(f"{len(unstable)} unstable periodic solutions (no stable response of this kind there: "
               "expect jumps, modulation or period doubling in an experiment)")
+    ratio = result.max_truncation_ratio
+    if ratio > 1e-2:
+        print(f"WARNING: the highest harmonic reaches {ratio:.2g} of the dominant one: N = {args.harmonics} "
+              "is too small here and parts of this curve may be spurious; raise --harmonics")
     print(f"total wall time {result.wall_time_s:.3f} s")
     if args.plot:
         print(f"plot: {args.plot}")

@@ -56,6 +56,11 @@ class SweepPoint:
     segment: int                # branch segment index (changes at every fold)
     solution: PeriodicSolution = field(repr=False)
 
+    @property
+    def truncation_ratio(self) -> float:
+        """See :attr:`PeriodicSolution.truncation_ratio` (NaN for a failed point)."""
+        return self.solution.truncation_ratio if self.solution is not None else float("nan")
+
     def to_dict(self) -> dict:
         return {
             "frequency_Hz": self.frequency_Hz,
@@ -68,6 +73,7 @@ class SweepPoint:
             "iterations": self.iterations,
             "wall_time_s": self.wall_time_s,
             "segment": self.segment,
+            "truncation_ratio": self.truncation_ratio,
         }
 
 
@@ -129,9 +135,15 @@ class SweepResult:
                 f_peak, d_peak = fold.frequency_Hz, fold.d_rms_m
         return {"frequency_Hz": float(f_peak), "d_rms_m": float(d_peak)}
 
+    @property
+    def max_truncation_ratio(self) -> float:
+        vals = [p.truncation_ratio for p in self.points if p.solution is not None]
+        return float(max(vals)) if vals else float("nan")
+
     def to_dict(self) -> dict:
         return {
             "n_harmonics": self.n_harmonics,
+            "max_truncation_ratio": self.max_truncation_ratio,
             "method": self.method,
             "d0_m": self.d0_m,
             "d0_choice": self.d0_choice,

@@ -146,3 +146,28 @@ def test_front_end_methods_and_errors(a2):
         solve_native(a2, inp, n_harmonics=0)
     with pytest.raises(ValueError, match="frequency_Hz"):
         SinePeriodic(2500.0, 0.0)
+
+
+def test_batch_solver_equals_single_solves(a2):
+    from dea_ros.solvers.harmonic_balance import solve_native_batch
+
+    inputs = [SinePeriodic(2500.0, f) for f in (0.5, 4.0, 9.0, 14.0, 19.0)]
+    batch = solve_native_batch(a2, inputs, n_harmonics=6, stability=True)
+    for inp, b in zip(inputs, batch):
+        single = solve_native(a2, inp, n_harmonics=6)
+        assert b.displacement_rms() == pytest.approx(single.displacement_rms(), rel=1e-9)
+        assert b.stability == single.stability
+    with pytest.raises(ValueError, match="symmetric"):
+        solve_native_batch(a2, [SinePeriodic(2500.0, 1.0), SinePeriodic(100.0, 1.0, offset_V=2000.0)])
+
+
+def test_auto_harmonics_reach_spectral_convergence(a2):
+    """N = 2 near resonance is under-resolved (a spurious large solution); 'auto' detects and fixes it."""
+    coarse = solve_native(a2, SinePeriodic(2500.0, 9.5), n_harmonics=2)
+    assert coarse.truncation_ratio > 0.1
+    auto = solve_native(a2, SinePeriodic(2500.0, 9.5), n_harmonics="auto")
+    assert auto.truncation_ratio < 1e-4 and auto.n_harmonics >= 4
+    fine = solve_native(a2, SinePeriodic(2500.0, 9.5), n_harmonics=16)
+    assert auto.displacement_rms() == pytest.approx(fine.displacement_rms(), rel=1e-4)
+    with pytest.raises(ValueError, match="auto"):
+        solve_native(a2, SinePeriodic(2500.0, 9.5), n_harmonics="many")
