@@ -371,6 +371,8 @@ class MockAmplifierReceiver:
 
     #: At most this many datagrams are drained per poll() (a flood cannot stall the caller).
     MAX_DATAGRAMS_PER_POLL = 4096
+    #: Requested socket receive buffer, bytes.
+    RECEIVE_BUFFER_BYTES = 1 << 20
 
     def __init__(
         self,
@@ -383,6 +385,8 @@ class MockAmplifierReceiver:
         self._clock = clock
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
+            # Room for a burst while the caller is busy (the kernel caps it at rmem_max).
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self.RECEIVE_BUFFER_BYTES)
             sock.bind((host, port))
             sock.setblocking(False)
         except OSError as exc:
@@ -429,8 +433,18 @@ class MockAmplifierReceiver:
 
     def poll(self) -> Optional[ReceivedVoltage]:
         """Drain pending datagrams; return the latest valid voltage (None if none yet)."""
+        self.poll_all()
+        return self._latest
+
+    def poll_all(self) -> list[ReceivedVoltage]:
+        """Drain pending datagrams; return every new valid one, oldest first.
+
+        A simulator that applies each voltage at its send time needs them all: a
+        slew-limited ramp arrives as several datagrams between two polls.
+        """
         if self._socket is None:
             raise AmplifierBackendError("MockAmplifierReceiver: poll() after close()")
+        fresh: list[ReceivedVoltage] = []
         for _ in range(self.MAX_DATAGRAMS_PER_POLL):
             try:
                 data = self._socket.recv(DATAGRAM_SIZE + 1)
@@ -461,7 +475,8 @@ class MockAmplifierReceiver:
                 sequence=datagram.sequence,
                 session_id=datagram.session_id,
             )
-        return self._latest
+            fresh.append(self._latest)
+        return fresh
 
     def close(self) -> None:
         if self._socket is not None:

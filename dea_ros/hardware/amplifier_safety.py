@@ -45,6 +45,7 @@ __all__ = [
     "ControllerState",
     "RejectionReason",
     "CommandResult",
+    "ACCEPTED",
     "ControllerDiagnostics",
     "SafeVoltageController",
     "membrane_voltage_limit_V",
@@ -260,6 +261,7 @@ class RejectionReason(str, enum.Enum):
     INACTIVE = "inactive"  #: the controller is not activated (or emergency-stopped)
 
 
+#: ``CommandResult.reason`` of an accepted command.
 ACCEPTED = "accepted"
 
 
@@ -332,6 +334,10 @@ class SafeVoltageController:
       or :meth:`emergency_ramp_down` it decreases at ``ramp_down_rate`` to 0 V;
     * NaN, +-inf, negative, above-max, non-numeric commands and commands while not
       activated are rejected, counted per reason, and do not move the target.
+
+    Not thread-safe: call it from one thread (in ROS 2, a single-threaded executor
+    or one mutually exclusive callback group for the command subscription and the
+    update timer).
     """
 
     def __init__(self, limits: SafetyLimits) -> None:
@@ -376,6 +382,11 @@ class SafeVoltageController:
     def output_V(self) -> float:
         """Output computed by the last :meth:`update` (the value to apply)."""
         return self._output_V
+
+    @property
+    def last_update_t_s(self) -> Optional[float]:
+        """``t`` of the last :meth:`update` (None before the first)."""
+        return self._last_update_t
 
     @property
     def rejected_counts(self) -> dict[str, int]:

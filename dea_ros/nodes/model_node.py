@@ -57,7 +57,10 @@ class ModelNode(Node):
         self.frame_id = declare_str(self, "frame_id", "dea_model", "frame_id of the predictions")
         self.stepper = self._make_stepper(self.params_file)
         self.voltage_V = 0.0
-        self.model_time_ns: int | None = None
+        self.model_time_ns: int | None = None   # time of the stepper's state (may be extrapolated)
+        self.anchor_ns: int | None = None       # stamp of the latest input: exact state below
+        self.anchor_state: list | None = None
+        self.stale_inputs = 0
         self.dt_ns = max(1, int(round(self.dt_s * 1e9)))
         self.late_ticks = 0
         self.resets_for_gaps = 0
@@ -86,12 +89,30 @@ class ModelNode(Node):
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def advance_to(self, t_ns: int) -> None:
-        """Integrate with the held voltage from model time to t_ns (integer ns: no float drift at epoch times)."""
-        if self.model_time_ns is None or t_ns < self.model_time_ns:
-            self.model_time_ns = t_ns  # first message, or time went backwards (bag loop): no jump
-            return
-        gap_ns = t_ns - self.model_time_ns
+    def integrate(self, from_ns: int, to_ns: int) -> None:
+        """Advance the stepper from from_ns to to_ns with the held voltage (fixed steps, last shortened)."""
+        n, rest_ns = divmod(to_ns - from_ns, self.dt_ns)
+        for _ in range(n):
+            self.stepper.step(self.voltage_V, self.dt_s)
+        if rest_ns > 0:
+            self.stepper.step(self.voltage_V, rest_ns * 1e-9)
+
+    def advance_to(self, t_ns: int) -> bool:
+        """Exact update at an input stamp: re-integrate from the anchor (the state at the previous input).
+
+        Predictions the timer published in between were extrapolations; they are
+        discarded here, so a late message never integrates an interval twice.
+        Returns False for a stale (out-of-order) stamp, which is ignored.
+        """
+        if self.anchor_ns is None:
+            self.anchor_ns = self.model_time_ns = t_ns
+            self.anchor_state = list(self.stepper.state)
+            return True
+        if t_ns < self.anchor_ns:
+            self.stale_inputs += 1
+            return False
+        gap_ns = t_ns - self.anchor_ns
+        self.stepper.state = list(self.anchor_state)
         if gap_ns > self.max_catch_up_s * 1e9:
             self.resets_for_gaps += 1
             self.get_logger().warning(
@@ -100,14 +121,11 @@ class ModelNode(Node):
                 throttle_duration_sec=5.0,
             )
             self.stepper.reset(self.voltage_V)
-            self.model_time_ns = t_ns
-            return
-        n, rest_ns = divmod(gap_ns, self.dt_ns)
-        for _ in range(n):
-            self.stepper.step(self.voltage_V, self.dt_s)
-        if rest_ns > 0:
-            self.stepper.step(self.voltage_V, rest_ns * 1e-9)
-        self.model_time_ns = t_ns
+        else:
+            self.integrate(self.anchor_ns, t_ns)
+        self.anchor_ns = self.model_time_ns = t_ns
+        self.anchor_state = list(self.stepper.state)
+        return True
 
     def publish_prediction(self, t_ns: int) -> None:
         self.pub.publish(make_range(self.stepper.displacement_m, t_ns, self.frame_id))
@@ -120,7 +138,8 @@ class ModelNode(Node):
         if not math.isfinite(u):
             return
         t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        self.advance_to(t_ns)
+        if not self.advance_to(t_ns):
+            return
         self.voltage_V = u
         self.publish_prediction(t_ns)
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
@@ -131,14 +150,19 @@ class ModelNode(Node):
             self.model_time_ns = now
             return
         behind_s = (now - self.model_time_ns) * 1e-9
-        if behind_s > 2.0 / self.rate_hz:
+        if behind_s > 2.0 / self.rate_hz:  # no input for two periods: extrapolate with the held voltage
             if behind_s > 4.0 / self.rate_hz:
                 self.late_ticks += 1
-            self.advance_to(now)
+            if behind_s > self.max_catch_up_s:
+                self.stepper.reset(self.voltage_V)
+            else:
+                self.integrate(self.model_time_ns, now)
+            self.model_time_ns = now
             self.publish_prediction(now)
 
     def on_reset(self, _req, resp):
         self.stepper.reset(self.voltage_V)
+        self.anchor_state = list(self.stepper.state)
         resp.success = True
         resp.message = f"model reset to the static equilibrium at {self.voltage_V:.1f} V"
         return resp
@@ -147,6 +171,7 @@ class ModelNode(Node):
         source = self.get_parameter("params_file").value
         try:
             self.stepper = RealTimeStepper(load_parameters(source), dt_s=self.dt_s, initial_voltage_V=self.voltage_V)
+            self.anchor_state = list(self.stepper.state)
         except (ParameterError, FileNotFoundError, ValueError) as exc:
             resp.success = False
             resp.message = f"params_file '{source}': {exc}"
@@ -165,6 +190,7 @@ class ModelNode(Node):
             KeyValue(key="published", value=str(self.published)),
             KeyValue(key="late_ticks", value=str(self.late_ticks)),
             KeyValue(key="resets_for_gaps", value=str(self.resets_for_gaps)),
+            KeyValue(key="stale_inputs", value=str(self.stale_inputs)),
             KeyValue(key="max_compute_ms", value=f"{self.max_compute_s * 1e3:.3f}"),
             KeyValue(key="voltage_V", value=f"{self.voltage_V:.1f}"),
             KeyValue(key="displacement_m", value=f"{self.stepper.displacement_m:.9f}"),

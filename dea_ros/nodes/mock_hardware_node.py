@@ -1,0 +1,287 @@
+"""mock_hardware_node: the simulated rig (amplifier output stage, membrane with its mass, laser head).
+
+The membrane is integrated with the core's fixed-step RK4 (``physics_dt_s``) with its own
+"true" parameters (``params_file``). It receives the amplifier's output from the ``mock``
+amplifier backend over UDP (``amplifier_port``), and measures the displacement like the
+laser: Gaussian noise (``noise_m``), quantisation (``quantisation_m``) and a sensor latency
+(``sensor_latency_s``). The measurement leaves the mock in one or both ways
+(``laser_output``):
+
+* ``emulator``: an ILD1320 emulator on a pseudo-terminal (symlink ``laser_port``), read
+  by laser_sensor_node exactly like the real sensor over its USB-RS422 adapter (real time);
+* ``topic``: the mock publishes ``displacement`` (sensor_msgs/Range) itself at
+  ``sample_rate_hz``, stamped with the acquisition time.
+
+Time: with ``publish_clock: false`` the mock follows the wall clock (real time). With
+``publish_clock: true`` it is the clock master: it advances simulated time at
+``real_time_factor`` times the wall clock in ticks of 1/``clock_rate_hz`` (simulated),
+publishes ``/clock`` (rosgraph_msgs/Clock) and the other nodes run with
+``use_sim_time: true``; the laser output must then be ``topic``.
+"""
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Range
+
+from ..hardware.amplifier_backends import MockAmplifierReceiver
+from ..model import ParameterError, load_parameters
+from ..solvers.integrate import RealTimeStepper
+from .common import (
+    SENSOR_QOS,
+    TOPIC_DISPLACEMENT,
+    declare_bool,
+    declare_float,
+    declare_int,
+    declare_str,
+    make_range,
+)
+
+__all__ = ["MockHardwareNode", "RigSimulator", "main"]
+
+
+class RigSimulator:
+    """The physics of the mock rig, independent of ROS (thread-safe).
+
+    Time is an arbitrary monotonic axis in seconds (the wall clock's monotonic time in
+    real-time mode, the simulated clock otherwise). ``advance_to(t)`` integrates with the
+    voltage applied at that moment; ``measure(t)`` returns what the laser reads for an
+    acquisition at ``t`` (past values from a history buffer, linear interpolation).
+    """
+
+    def __init__(self, params, physics_dt_s: float, t0_s: float, noise_m: float, quantisation_m: float,
+                 latency_s: float, seed: int = 0, history_s: float = 2.0):
+        self.params = params
+        self.stepper = RealTimeStepper(params, dt_s=physics_dt_s)
+        self.dt_s = physics_dt_s
+        self.t_s = t0_s
+        self.voltage_V = 0.0
+        self.noise_m = noise_m
+        self.quantisation_m = quantisation_m
+        self.latency_s = latency_s
+        self.rng = np.random.default_rng(seed)
+        self.lock = threading.Lock()
+        n = int(history_s / physics_dt_s) + 2
+        self.history = collections.deque(maxlen=n)
+        self.history.append((t0_s, self.stepper.displacement_m))
+        self.steps = 0
+
+    def set_voltage(self, voltage_V: float) -> None:
+        with self.lock:
+            self.voltage_V = float(voltage_V)
+
+    def advance_to(self, t_s: float) -> None:
+        with self.lock:
+            self._advance_locked(t_s)
+
+    def _advance_locked(self, t_s: float) -> None:
+        while self.t_s + self.dt_s <= t_s + 1e-12:
+            self.stepper.step(self.voltage_V)
+            self.t_s += self.dt_s
+            self.steps += 1
+            self.history.append((self.t_s, self.stepper.displacement_m))
+
+    def true_displacement_m(self, t_s: float) -> float:
+        """Displacement at t (interpolated in the history; the future is integrated first)."""
+        with self.lock:
+            if t_s > self.t_s:
+                self._advance_locked(t_s)
+            hist = self.history
+            if t_s >= hist[-1][0]:
+                return hist[-1][1]
+            if t_s <= hist[0][0]:
+                return hist[0][1]
+            # binary search in the deque (convert lazily: the deque is short)
+            lo, hi = 0, len(hist) - 1
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                if hist[mid][0] <= t_s:
+                    lo = mid
+                else:
+                    hi = mid
+            (ta, da), (tb, db) = hist[lo], hist[hi]
+            return da + (db - da) * (t_s - ta) / (tb - ta)
+
+    def measure(self, t_acq_s: float) -> float:
+        """Laser reading for an acquisition at t: latency, noise, quantisation."""
+        d = self.true_displacement_m(t_acq_s - self.latency_s)
+        if self.noise_m > 0:
+            d += float(self.rng.normal(0.0, self.noise_m))
+        if self.quantisation_m > 0:
+            d = round(d / self.quantisation_m) * self.quantisation_m
+        return d
+
+
+class MockHardwareNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("mock_hardware_node", **kwargs)
+        source = declare_str(self, "params_file", "A2", "true membrane of the simulated rig (preset or YAML)")
+        self.noise_m = declare_float(self, "noise_m", 1e-6, "laser noise, standard deviation, m", 0.0, 1e-3)
+        quant = declare_float(self, "quantisation_m", 10e-3 / 2**18, "laser resolution, m (ILD1320-10: ~38 nm)",
+                              0.0, 1e-4)
+        latency = declare_float(self, "sensor_latency_s", 0.0, "laser latency, s", 0.0, 0.1)
+        self.physics_dt_s = declare_float(self, "physics_dt_s", 0.5e-3, "RK4 step of the membrane, s",
+                                          1e-5, 5e-3)
+        self.sample_rate_hz = declare_float(self, "sample_rate_hz", 1000.0,
+                                            "laser rate for laser_output topic, Hz", 1.0, 20000.0)
+        self.laser_output = declare_str(self, "laser_output", "topic", "topic, emulator or both")
+        self.laser_port = declare_str(self, "laser_port", "/tmp/dea_ros_mock_laser",
+                                      "symlink of the emulated sensor's serial port")
+        self.laser_standoff_m = declare_float(self, "laser_standoff_m", 2e-3,
+                                              "distance reading of the flat membrane (tare value), m", 0.0, 0.01)
+        self.amplifier_port = declare_int(self, "amplifier_port", 47650, "UDP port for the amplifier mock backend",
+                                          1, 65535)
+        self.publish_clock = declare_bool(self, "publish_clock", False,
+                                          "be the clock master: publish /clock (simulated time)")
+        self.real_time_factor = declare_float(self, "real_time_factor", 1.0,
+                                              "simulated seconds per wall second (publish_clock)", 0.01, 100.0)
+        self.clock_rate_hz = declare_float(self, "clock_rate_hz", 500.0, "/clock ticks per simulated second",
+                                           10.0, 10000.0)
+        seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
+        if self.laser_output not in ("topic", "emulator", "both"):
+            raise SystemExit(f"mock_hardware_node: parameter 'laser_output': topic, emulator or both, "
+                             f"got {self.laser_output!r}")
+        if self.publish_clock and self.laser_output != "topic":
+            raise SystemExit("mock_hardware_node: with publish_clock (simulated time) laser_output must be "
+                             "'topic' (the serial emulator streams in wall-clock time)")
+        try:
+            params = load_parameters(source)
+        except (ParameterError, FileNotFoundError) as exc:
+            raise SystemExit(f"mock_hardware_node: parameter 'params_file': {exc}") from None
+        self.receiver = MockAmplifierReceiver(port=self.amplifier_port)
+        # simulated time starts at the wall-clock date (plausible bag stamps); real time runs on monotonic
+        t0 = time.time() if self.publish_clock else time.monotonic()
+        self.sim = RigSimulator(params, self.physics_dt_s, t0, self.noise_m, quant, latency, seed)
+        self.sim_t0 = t0
+        self.next_sample_index = 1
+        self.sample_t0 = t0
+        self.range_pub = None
+        if self.laser_output in ("topic", "both"):
+            self.range_pub = self.create_publisher(Range, TOPIC_DISPLACEMENT, SENSOR_QOS)
+        self.emulator = None
+        if self.laser_output in ("emulator", "both"):
+            from ..hardware.ild1320_emulator import ILD1320Emulator
+
+            standoff = self.laser_standoff_m
+            self.emulator = ILD1320Emulator(
+                lambda t: standoff + self.sim.measure(t), measuring_rate_hz=2000.0, symlink=self.laser_port,
+                seed=seed,
+            ).start()
+        self.clock_pub = None
+        if self.publish_clock:
+            self.clock_pub = self.create_publisher(Clock, "/clock", 10)
+            self.wall_t0 = time.monotonic()
+            self.timer = self.create_timer(1.0 / (self.clock_rate_hz * self.real_time_factor), self.on_sim_tick,
+                                           clock=_wall_clock())
+        else:
+            self.timer = self.create_timer(0.002, self.on_realtime_tick)
+        self.mono_to_ros = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(1.0, self.publish_diagnostics, clock=_wall_clock())
+        self.published = 0
+        self.get_logger().info(
+            f"mock rig: membrane {params.name}, noise {self.noise_m * 1e6:g} um, amplifier UDP port "
+            f"{self.receiver.port}, laser output {self.laser_output}"
+            + (f" ({self.emulator.port_path} -> {self.laser_port})" if self.emulator else "")
+            + (f", simulated time x{self.real_time_factor:g}" if self.publish_clock else ", real time")
+        )
+
+    # ------------------------------------------------------------------ time
+    def poll_amplifier(self) -> None:
+        """Apply the amplifier's latest output.
+
+        In real time the datagram carries the amplifier's monotonic send time (same
+        host, same clock): the membrane is integrated up to that instant with the
+        previous voltage before the new one is applied, so executor and transport
+        delays do not shift the physics. In simulated time the voltage applies now.
+        """
+        for received in self.receiver.poll_all():
+            if not self.publish_clock and received.sent_s <= time.monotonic():
+                self.sim.advance_to(max(received.sent_s, self.sim.t_s))
+            self.sim.set_voltage(received.voltage_V)
+
+    def emit_samples(self, t_end: float, to_ros_offset: float) -> None:
+        """Publish laser samples acquired up to t_end (simulation time axis)."""
+        if self.range_pub is None:
+            return
+        period = 1.0 / self.sample_rate_hz
+        while self.sample_t0 + self.next_sample_index * period <= t_end:
+            t_acq = self.sample_t0 + self.next_sample_index * period
+            self.next_sample_index += 1
+            d = self.sim.measure(t_acq)
+            t_ros_ns = int(round((t_acq + to_ros_offset) * 1e9))
+            self.range_pub.publish(make_range(d, t_ros_ns, "dea_laser"))
+            self.published += 1
+
+    def on_realtime_tick(self) -> None:
+        self.poll_amplifier()
+        now = time.monotonic()
+        self.sim.advance_to(now)
+        self.emit_samples(now, self.mono_to_ros)
+
+    def on_sim_tick(self) -> None:
+        self.poll_amplifier()
+        t_new = self.sim.t_s + 1.0 / self.clock_rate_hz
+        self.sim.advance_to(t_new)
+        self.emit_samples(t_new, 0.0)
+        msg = Clock()
+        sec = math.floor(t_new)
+        msg.clock.sec = int(sec)
+        msg.clock.nanosec = min(int(round((t_new - sec) * 1e9)), 999_999_999)
+        self.clock_pub.publish(msg)
+
+    def publish_diagnostics(self) -> None:
+        status = DiagnosticStatus()
+        status.name = f"{self.get_name()}: simulated rig"
+        status.hardware_id = self.sim.params.name
+        status.level = DiagnosticStatus.OK
+        status.message = "running"
+        lag = (time.monotonic() - self.wall_t0) * self.real_time_factor - (self.sim.t_s - self.sim_t0) \
+            if self.publish_clock else 0.0
+        status.values = [
+            KeyValue(key="voltage_V", value=f"{self.sim.voltage_V:.1f}"),
+            KeyValue(key="displacement_m", value=f"{self.sim.stepper.displacement_m:.9f}"),
+            KeyValue(key="physics_steps", value=str(self.sim.steps)),
+            KeyValue(key="samples_published", value=str(self.published)),
+            KeyValue(key="amplifier_datagrams", value=str(self.receiver.received_count)),
+            KeyValue(key="sim_lag_s", value=f"{lag:.3f}"),
+        ]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self.diag_pub.publish(arr)
+
+    def shutdown_safely(self) -> None:
+        """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent."""
+        if self.emulator is not None:
+            self.emulator.stop()
+            self.emulator = None
+        if self.receiver.is_open:
+            self.receiver.close()
+
+    def destroy_node(self):
+        self.shutdown_safely()
+        return super().destroy_node()
+
+
+def _wall_clock():
+    from rclpy.clock import Clock as RclClock, ClockType
+
+    return RclClock(clock_type=ClockType.STEADY_TIME)
+
+
+def main(args=None) -> None:
+    from .runner import run_node
+
+    run_node(MockHardwareNode, args)
+
+
+if __name__ == "__main__":
+    main()
