@@ -38,6 +38,11 @@ setup(
     entry_points={
         "console_scripts": [
             "dea-ros = dea_ros.cli:main",
+            "amplifier_node = dea_ros.nodes.amplifier_node:main",
+            "laser_sensor_node = dea_ros.nodes.laser_sensor_node:main",
+            "model_node = dea_ros.nodes.model_node:main",
+            "mock_hardware_node = dea_ros.nodes.mock_hardware_node:main",
+            "identifier_node = dea_ros.nodes.identifier_node:main",
         ],
     },
 )

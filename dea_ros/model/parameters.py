@@ -258,10 +258,12 @@ class MembraneParameters:
 
 
 def config_dir() -> Path:
-    """The package's config folder (source tree, installed share/, or ament index)."""
+    """The package's config folder: source tree, colcon/pip install (share/dea_ros/config), or ament index."""
     here = Path(__file__).resolve()
-    candidates = [here.parents[2] / "config", here.parent.parent / "config"]
-    try:  # installed with colcon / ament: share/dea_ros/config
+    candidates = [here.parents[2] / "config"]  # source tree: <repo>/dea_ros/model/parameters.py
+    # installed: <prefix>/lib/pythonX.Y/site-packages/dea_ros/model/parameters.py -> <prefix>/share/dea_ros/config
+    candidates += [parent / "share" / "dea_ros" / "config" for parent in here.parents]
+    try:  # a sourced ROS 2 workspace
         from ament_index_python.packages import get_package_share_directory  # type: ignore
 
         candidates.append(Path(get_package_share_directory("dea_ros")) / "config")
@@ -274,7 +276,8 @@ def config_dir() -> Path:
         if (c / "membranes").is_dir():
             return c
     raise FileNotFoundError(
-        "dea_ros config folder not found; looked in " + ", ".join(str(c) for c in candidates)
+        "dea_ros config folder (with membranes/) not found; looked in "
+        + ", ".join(str(c) for c in candidates[:4]) + " ...; reinstall the package or pass a YAML path"
     )
 
 

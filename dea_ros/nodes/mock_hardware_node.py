@@ -136,8 +136,8 @@ class MockHardwareNode(Node):
                                       "symlink of the emulated sensor's serial port")
         self.laser_standoff_m = declare_float(self, "laser_standoff_m", 2e-3,
                                               "distance reading of the flat membrane (tare value), m", 0.0, 0.01)
-        self.amplifier_port = declare_int(self, "amplifier_port", 47650, "UDP port for the amplifier mock backend",
-                                          1, 65535)
+        self.amplifier_port = declare_int(self, "amplifier_port", 47650,
+                                          "UDP port for the amplifier mock backend (0: any free port)", 0, 65535)
         self.publish_clock = declare_bool(self, "publish_clock", False,
                                           "be the clock master: publish /clock (simulated time)")
         self.real_time_factor = declare_float(self, "real_time_factor", 1.0,
