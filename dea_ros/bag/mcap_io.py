@@ -93,7 +93,8 @@ def _compressor(compression: str, level: Optional[int]):
 class McapChunkedWriter:
     """Chunked MCAP writer with explicit :meth:`flush` (not thread-safe; callers serialize).
 
-    :param stream: binary stream opened for writing at offset 0 (not closed by this class).
+    :param stream: binary stream opened for writing at offset 0 (not closed by this class); an
+        unbuffered ``open(path, "xb", buffering=0)`` makes every closed chunk reach the OS at once.
     :param profile: MCAP header profile (``"ros2"`` for rosbag2).
     :param library: MCAP header library string.
     :param compression: ``"zstd"``, ``"lz4"`` or ``"none"``.
@@ -137,7 +138,12 @@ class McapChunkedWriter:
 
     # -- helpers ---------------------------------------------------------------------------
     def _write(self, data: Union[bytes, bytearray, memoryview]) -> None:
-        self._stream.write(data)
+        view = memoryview(data)
+        while view:
+            written = self._stream.write(view)
+            if written is None:  # pragma: no cover - non-blocking streams are not supported
+                raise BagError("MCAP output stream is non-blocking; use a regular file")
+            view = view[written:]
         self._offset += len(data)
 
     def _write_record(self, record) -> int:
@@ -157,6 +163,16 @@ class McapChunkedWriter:
     def message_count(self) -> int:
         """Messages added so far (including those in the open chunk)."""
         return self._message_count
+
+    @property
+    def message_start_time(self) -> int:
+        """Smallest log time written, ns (0 before the first message)."""
+        return self._message_start_time
+
+    @property
+    def message_end_time(self) -> int:
+        """Largest log time written, ns (0 before the first message)."""
+        return self._message_end_time
 
     @property
     def pending_messages(self) -> int:
@@ -463,7 +479,10 @@ def scan_mcap(path: Union[str, Path], *, load_messages: bool = True) -> McapScan
                 break
             opcode, length = _RECORD_PREFIX.unpack(prefix)
             if length > scan.file_size - position - 9:
-                name = Opcode(opcode).name if opcode in Opcode._value2member_map_ else f"opcode {opcode:#x}"
+                try:
+                    name = Opcode(opcode).name
+                except ValueError:
+                    name = f"opcode {opcode:#x}"
                 scan.problem = f"file ends inside a {name} record at offset {position}"
                 break
             body = handle.read(length)

@@ -99,6 +99,10 @@ class AmplifierNode(LifecycleNode):
     def make_backend(self, max_voltage_V: float):
         kind = self.p("backend")
         if kind == "mock":
+            if self.get_parameter("use_sim_time").value:
+                # simulated time: stamp the datagrams with the ROS (simulated) clock so that the mock
+                # applies each voltage at the simulated instant it was applied (lockstep)
+                return MockAmplifierBackend(int(self.p("mock_port")), max_voltage_V=max_voltage_V, clock=self.now_s)
             return MockAmplifierBackend(int(self.p("mock_port")), max_voltage_V=max_voltage_V)
         if kind == "inprocess":
             return InProcessAmplifierBackend(max_voltage_V=max_voltage_V)

@@ -16,7 +16,10 @@ Time: with ``publish_clock: false`` the mock follows the wall clock (real time).
 ``publish_clock: true`` it is the clock master: it advances simulated time at
 ``real_time_factor`` times the wall clock in ticks of 1/``clock_rate_hz`` (simulated),
 publishes ``/clock`` (rosgraph_msgs/Clock) and the other nodes run with
-``use_sim_time: true``; the laser output must then be ``topic``.
+``use_sim_time: true``; the laser output must then be ``topic``. With ``lockstep`` (default) the
+simulation never runs ahead of the amplifier: a tick is published only after the amplifier's
+output for the previous one arrived (stamped with the simulated clock), or after
+``lockstep_timeout_s`` of wall time. ``real_time_factor`` is then an upper bound.
 """
 from __future__ import annotations
 
@@ -144,6 +147,10 @@ class MockHardwareNode(Node):
                                               "simulated seconds per wall second (publish_clock)", 0.01, 100.0)
         self.clock_rate_hz = declare_float(self, "clock_rate_hz", 500.0, "/clock ticks per simulated second",
                                            10.0, 10000.0)
+        self.lockstep = declare_bool(self, "lockstep", True,
+                                     "simulated time: never advance before the amplifier acted on the last tick")
+        self.lockstep_timeout_s = declare_float(self, "lockstep_timeout_s", 0.5,
+                                                "wall-clock wait for the amplifier per tick, s", 0.001, 10.0)
         seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
         if self.laser_output not in ("topic", "emulator", "both"):
             raise SystemExit(f"mock_hardware_node: parameter 'laser_output': topic, emulator or both, "
@@ -156,6 +163,10 @@ class MockHardwareNode(Node):
         except (ParameterError, FileNotFoundError) as exc:
             raise SystemExit(f"mock_hardware_node: parameter 'params_file': {exc}") from None
         self.receiver = MockAmplifierReceiver(port=self.amplifier_port)
+        self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
+        self.clock_time_s: float | None = None   # last /clock published
+        self.tick_wall_s = time.monotonic()
+        self.lockstep_timeouts = 0
         # simulated time starts at the wall-clock date (plausible bag stamps); real time runs on monotonic
         t0 = time.time() if self.publish_clock else time.monotonic()
         self.sim = RigSimulator(params, self.physics_dt_s, t0, self.noise_m, quant, latency, seed)
@@ -178,8 +189,10 @@ class MockHardwareNode(Node):
         if self.publish_clock:
             self.clock_pub = self.create_publisher(Clock, "/clock", 10)
             self.wall_t0 = time.monotonic()
-            self.timer = self.create_timer(1.0 / (self.clock_rate_hz * self.real_time_factor), self.on_sim_tick,
-                                           clock=_wall_clock())
+            # poll faster than the tick period: a tick waits for the amplifier (lockstep), and the
+            # simulated clock may not run ahead of real_time_factor x the wall clock
+            period = min(1.0 / (self.clock_rate_hz * self.real_time_factor), 0.0005)
+            self.timer = self.create_timer(period, self.on_sim_tick, clock=_wall_clock())
         else:
             self.timer = self.create_timer(0.002, self.on_realtime_tick)
         self.mono_to_ros = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
@@ -203,7 +216,11 @@ class MockHardwareNode(Node):
         delays do not shift the physics. In simulated time the voltage applies now.
         """
         for received in self.receiver.poll_all():
-            if not self.publish_clock and received.sent_s <= time.monotonic():
+            if self.publish_clock:
+                # stamped with the simulated clock by the amplifier node (use_sim_time)
+                self.amp_time_s = max(self.amp_time_s or received.sent_s, received.sent_s)
+                self.sim.advance_to(max(received.sent_s, self.sim.t_s))
+            elif received.sent_s <= time.monotonic():
                 self.sim.advance_to(max(received.sent_s, self.sim.t_s))
             self.sim.set_voltage(received.voltage_V)
 
@@ -228,9 +245,24 @@ class MockHardwareNode(Node):
 
     def on_sim_tick(self) -> None:
         self.poll_amplifier()
+        if (self.sim.t_s - self.sim_t0) > (time.monotonic() - self.wall_t0) * self.real_time_factor:
+            return  # ahead of the requested speed
+        if self.lockstep and self.amp_time_s is not None and self.clock_time_s is not None \
+                and self.amp_time_s < self.clock_time_s - 1e-9:
+            # the amplifier has not acted on the last tick yet: do not run ahead of the controller
+            waited = time.monotonic() - self.tick_wall_s
+            if waited < self.lockstep_timeout_s:
+                return
+            self.lockstep_timeouts += 1
+            if self.lockstep_timeouts in (1, 10, 100) or self.lockstep_timeouts % 1000 == 0:
+                self.get_logger().warning(
+                    f"amplifier silent for {waited:.2f} s (wall) at simulated t = {self.clock_time_s:.3f} s: "
+                    f"continuing with the held voltage ({self.lockstep_timeouts} timeouts)")
         t_new = self.sim.t_s + 1.0 / self.clock_rate_hz
         self.sim.advance_to(t_new)
         self.emit_samples(t_new, 0.0)
+        self.clock_time_s = t_new
+        self.tick_wall_s = time.monotonic()
         msg = Clock()
         sec = math.floor(t_new)
         msg.clock.sec = int(sec)
@@ -252,6 +284,7 @@ class MockHardwareNode(Node):
             KeyValue(key="samples_published", value=str(self.published)),
             KeyValue(key="amplifier_datagrams", value=str(self.receiver.received_count)),
             KeyValue(key="sim_lag_s", value=f"{lag:.3f}"),
+            KeyValue(key="lockstep_timeouts", value=str(self.lockstep_timeouts)),
         ]
         arr = DiagnosticArray()
         arr.header.stamp = self.get_clock().now().to_msg()

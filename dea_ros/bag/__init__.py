@@ -1,0 +1,109 @@
+"""rosbag2-compatible MCAP bags, written and read without ROS (no rclpy import anywhere here).
+
+Quick start
+===========
+
+Record (in a node, from a script or a notebook)::
+
+    from dea_ros.bag import BagWriter, BagReader, sensor_data_qos
+
+    with BagWriter("runs/2024-05-01_sine_3kV", flush_period_s=1.0) as bag:
+        bag.add_topic("/dea/range", "sensor_msgs/msg/Range", sensor_data_qos())   # best_effort, depth 5
+        bag.add_topic("/dea/voltage_cmd", "std_msgs/msg/Float64")                 # reliable, depth 10
+        bag.add_metadata("protocol", {"waveform": "sine", "amplitude_V": "3000"})
+        bag.write_serialized("/dea/range", rclpy.serialization.serialize_message(msg), t_ns)
+        bag.write("/dea/voltage_cmd", {"data": 1500.0}, t_ns)      # dict -> CDR via mcap_ros2
+
+Read back (log-time order, decoded with the schema stored in the bag)::
+
+    with BagReader("runs/2024-05-01_sine_3kV") as bag:
+        bag.require_topics({"/dea/range": "sensor_msgs/msg/Range"})
+        for topic, t_ns, msg in bag.messages(["/dea/range"]):
+            print(t_ns, msg.range)
+
+Before a recording, ``check_writable(dir, min_free_bytes)`` fails early for an existing or
+unwritable directory or a full disk. After the recorder was killed, ``recover_bag(dir)`` rewrites
+the unfinished ``.mcap`` (everything older than ``flush_period_s`` survives) and regenerates
+``metadata.yaml``; ``BagReader`` can also read the unfinished file directly (with a warning).
+
+On-disk format (what ``ros2 bag record -s mcap -o <dir>`` writes)
+================================================================
+
+* ``<dir>/<dirname>_0.mcap`` and ``<dir>/metadata.yaml`` (written on close).
+* MCAP header profile ``ros2``, library ``dea_ros.bag <version> (...)``; chunked, zstd (or lz4 /
+  none); chunk CRCs, message indexes, summary with statistics/chunk/metadata indexes.
+* One schema per type: name ``pkg/msg/Type``, encoding ``ros2msg``, data = the ``.msg`` text with
+  dependencies appended after 80 ``=`` and ``MSG: pkg/Type`` lines (rosbag2's
+  ``LocalMessageDefinitionSource``). Texts come from installed ROS share dirs, else are vendored.
+* One channel per topic: message encoding ``cdr``, metadata ``offered_qos_profiles`` (YAML text
+  of the profile list) and ``topic_type_hash`` (``RIHS01_...``; omitted when unknown).
+* MCAP Metadata record ``rosbag2`` with ``serialized_metadata`` (the bag information, written on
+  open and on close like rosbag2_storage_mcap), plus the records added with ``add_metadata``.
+* ``rosbag2_format="jazzy"`` (default): metadata version 9 with string QoS policies
+  (``keep_last``, ``reliable``, ``best_effort``, ``volatile`` ...) -> Jazzy, Kilted, Rolling.
+  ``rosbag2_format="humble"``: metadata version 5 with integer QoS enums in a YAML string, no
+  type hashes -> readable by Humble (whose reader rejects version 9 metadata).
+* Timestamps: ``log_time`` = receive/record time (rosbag2 ``recv_timestamp``), ``publish_time``
+  = send time (defaults to log time), both integer ns since the Unix epoch.
+
+Opening the bags with ROS tools
+===============================
+
+* ``ros2 bag info <dir>`` and ``ros2 bag play <dir>`` (Humble or newer with the MCAP storage
+  plugin: ``sudo apt install ros-$ROS_DISTRO-rosbag2-storage-mcap``; it is the default storage
+  from Iron on; on Humble add ``-s mcap`` if auto-detection fails). Record Humble-playable bags
+  with ``BagWriter(..., rosbag2_format="humble")``. Playback re-offers the recorded QoS.
+* Foxglove Studio / Foxglove app: open ``<dir>/<dirname>_0.mcap`` (File > Open local file); the
+  ``ros2msg`` schemas in the file decode everything without a ROS installation.
+* PlotJuggler: load ``<dir>/<dirname>_0.mcap`` with the MCAP data loader (PlotJuggler >= 3.6 ships
+  it), or open ``<dir>/metadata.yaml`` with the ROS 2 bag loader of the ``plotjuggler_ros`` plugin
+  (needs ROS sourced and rosbag2_storage_mcap).
+* Python without ROS: this module, ``rosbags`` (``rosbags.rosbag2.Reader(<dir>)``) or ``mcap`` +
+  ``mcap_ros2`` on the ``.mcap`` file.
+* A killed recording: run ``python -c "from dea_ros.bag import recover_bag; recover_bag('<dir>')"``
+  first (``ros2 bag reindex`` cannot repair a file without footer).
+"""
+
+from .definitions import MessageDefinition, MessageDefinitionStore, default_search_prefixes
+from .errors import BagError, BagTruncatedWarning, BagWarning
+from .qos import (
+    INFINITE_DURATION,
+    QosDuration,
+    QosProfile,
+    command_qos,
+    parse_qos_profiles,
+    qos_from_dict,
+    qos_to_dict,
+    sensor_data_qos,
+    serialize_qos_profiles,
+)
+from .reader import BagMessage, BagReader, RawBagMessage, TopicInfo
+from .recover import RecoveryReport, recover_bag
+from .writer import DEFAULT_MIN_FREE_BYTES, BagWriter, check_writable
+
+__all__ = [
+    "BagWriter",
+    "BagReader",
+    "BagMessage",
+    "RawBagMessage",
+    "TopicInfo",
+    "check_writable",
+    "recover_bag",
+    "RecoveryReport",
+    "DEFAULT_MIN_FREE_BYTES",
+    "BagError",
+    "BagWarning",
+    "BagTruncatedWarning",
+    "QosProfile",
+    "QosDuration",
+    "INFINITE_DURATION",
+    "command_qos",
+    "sensor_data_qos",
+    "qos_to_dict",
+    "qos_from_dict",
+    "serialize_qos_profiles",
+    "parse_qos_profiles",
+    "MessageDefinition",
+    "MessageDefinitionStore",
+    "default_search_prefixes",
+]

@@ -1,0 +1,224 @@
+"""Experiments from a bag: cut static, step and sine experiments out of a recorded rig session.
+
+Signals: the applied voltage (``sensor_msgs/msg/BatteryState`` -> ``voltage``, or
+``std_msgs/msg/Float64`` -> ``data``) and the displacement (``sensor_msgs/msg/Range`` ->
+``range``, or ``std_msgs/msg/Float64``). Stamped messages use their header stamp (the acquisition
+time), others the bag's log time. Topic names are configurable (:class:`BagTopics`).
+
+Segments: a bag recorded by identifier_node carries an MCAP metadata record
+``dea_ros.experiment`` with the protocol's schedule (JSON) and its start time. For any other
+rosbag2 bag, give the same information as a YAML file (``segments_file``)::
+
+    membrane: A2          # preset or parameters YAML with the geometry
+    mass_kg: 0.003
+    t0_s: 1700000000.0    # absolute time of the protocol start (s); times below are relative
+    segments:
+      - {kind: static, voltage_V: 0, measure_start_s: 3, measure_end_s: 4}
+      - {kind: step, start_s: 4, end_s: 9}
+      - {kind: sine, frequency_Hz: 9.0, amplitude_V: 2500, measure_start_s: 20, measure_end_s: 23}
+
+Static: mean displacement over the measurement window. Step: voltage (zero-order hold of the
+applied voltage) and displacement at the displacement samples of the segment. Sine: RMS of
+d - d0 over whole periods of the window (eq. 21), d0 = the measured rest position at 0 V
+(static segment at 0 V, else the start of the recording), with the sampled series attached.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import BagError
+from .reader import BagReader
+
+__all__ = ["BagTopics", "BagSignals", "read_signals", "experiments_from_bag", "EXPERIMENT_METADATA"]
+
+#: name of the MCAP metadata record written by identifier_node
+EXPERIMENT_METADATA = "dea_ros.experiment"
+
+_VALUE_FIELDS = {
+    "sensor_msgs/msg/BatteryState": "voltage",
+    "sensor_msgs/msg/Range": "range",
+    "std_msgs/msg/Float64": "data",
+    "std_msgs/msg/Float32": "data",
+}
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    voltage: str = "/dea/voltage"
+    displacement: str = "/dea/displacement"
+
+
+@dataclass
+class BagSignals:
+    voltage_t_s: np.ndarray
+    voltage_V: np.ndarray
+    displacement_t_s: np.ndarray
+    displacement_m: np.ndarray
+    metadata: dict
+
+
+def _resolve(topics_in_bag: dict, wanted: str, role: str, path) -> str:
+    if wanted in topics_in_bag:
+        return wanted
+    # allow a different namespace: match on the last path element
+    base = wanted.rsplit("/", 1)[-1]
+    matches = [t for t in topics_in_bag if t.rsplit("/", 1)[-1] == base]
+    if len(matches) == 1:
+        return matches[0]
+    raise BagError(
+        f"{path}: no {role} topic '{wanted}' (topics: {sorted(topics_in_bag)}); "
+        f"name it with --{role}-topic"
+    )
+
+
+def read_signals(path, topics: BagTopics = BagTopics()) -> BagSignals:
+    """Voltage and displacement time series (s since the epoch, V, m) and the metadata records."""
+    with BagReader(path) as bag:
+        info = bag.topics()
+        names = {}
+        for role, wanted in (("voltage", topics.voltage), ("displacement", topics.displacement)):
+            name = _resolve(info, wanted, role, path)
+            if info[name].type not in _VALUE_FIELDS:
+                raise BagError(
+                    f"{path}: topic {name} has type {info[name].type}; the {role} must be one of "
+                    f"{sorted(_VALUE_FIELDS)}"
+                )
+            if info[name].message_count == 0:
+                raise BagError(f"{path}: topic {name} ({role}) has no messages")
+            names[role] = name
+        series = {role: ([], []) for role in names}
+        role_of = {v: k for k, v in names.items()}
+        for topic, log_ns, msg in bag.messages(list(names.values())):
+            role = role_of[topic]
+            field = _VALUE_FIELDS[info[topic].type]
+            header = getattr(msg, "header", None)
+            if header is not None:
+                t = header.stamp.sec + header.stamp.nanosec * 1e-9
+            else:
+                t = log_ns * 1e-9
+            value = float(getattr(msg, field))
+            if role == "voltage" and hasattr(msg, "present") and not msg.present:
+                value = 0.0 if not math.isfinite(value) else value
+            series[role][0].append(t)
+            series[role][1].append(value)
+        meta = bag.metadata()
+    out = {}
+    for role, (t, v) in series.items():
+        t, v = np.asarray(t), np.asarray(v, float)
+        order = np.argsort(t, kind="stable")
+        out[role] = (t[order], v[order])
+    return BagSignals(out["voltage"][0], out["voltage"][1], out["displacement"][0], out["displacement"][1], meta)
+
+
+def _schedule(signals: BagSignals, segments_file, path):
+    if segments_file is not None:
+        data = yaml.safe_load(Path(segments_file).read_text())
+        if not isinstance(data, dict) or "segments" not in data or "t0_s" not in data:
+            raise BagError(f"{segments_file}: needs 't0_s' and 'segments' (see dea_ros.bag.extract)")
+        return data, float(data["t0_s"]), list(data["segments"])
+    record = signals.metadata.get(EXPERIMENT_METADATA)
+    if record is None:
+        raise BagError(
+            f"{path}: no '{EXPERIMENT_METADATA}' metadata (not recorded by identifier_node); "
+            "describe the experiments with a segments YAML (--segments FILE)"
+        )
+    try:
+        segments = json.loads(record["segments_json"])
+        t0 = int(record["t0_ns"]) * 1e-9
+    except (KeyError, ValueError) as exc:
+        raise BagError(f"{path}: metadata '{EXPERIMENT_METADATA}' is malformed ({exc})") from None
+    info = {k: v for k, v in record.items() if k not in ("segments_json",)}
+    return info, t0, segments
+
+
+def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=None, membrane=None):
+    """An :class:`dea_ros.identify.experiments.ExperimentSet` cut from a bag."""
+    from ..identify.experiments import (
+        ExperimentError,
+        ExperimentSet,
+        SineData,
+        SineSeries,
+        StaticData,
+        StepData,
+        GEOMETRY_FIELDS,
+    )
+    from ..model import load_parameters
+
+    signals = read_signals(path, topics)
+    info, t0, segments = _schedule(signals, segments_file, path)
+    if str(info.get("aborted", "false")).lower() == "true":
+        completed = int(info.get("segments_completed", len(segments)))
+        segments = segments[:completed]
+    membrane_ref = membrane or info.get("membrane", "A2")
+    base = load_parameters(membrane_ref)
+    mass = float(info.get("mass_kg", base.mass_kg))
+    tv, uv = signals.voltage_t_s - t0, signals.voltage_V
+    td, dd = signals.displacement_t_s - t0, signals.displacement_m
+    if td.size < 10:
+        raise BagError(f"{path}: only {td.size} displacement samples")
+
+    def window(a, b):
+        k = (td >= a) & (td < b)
+        return td[k], dd[k]
+
+    def voltage_at(t):
+        idx = np.clip(np.searchsorted(tv, t, side="right") - 1, 0, tv.size - 1)
+        return uv[idx]
+
+    static_m, static_u, static_d = [], [], []
+    steps, sine_rows, series = [], [], []
+    rest_d0 = None
+    for k, seg in enumerate(segments):
+        kind = seg.get("kind")
+        if kind == "static":
+            t, d = window(seg["measure_start_s"], seg["measure_end_s"])
+            if t.size < 3:
+                raise BagError(f"{path}: static segment {k} ({seg.get('voltage_V')} V) has {t.size} samples")
+            u = float(np.mean(voltage_at(t)))
+            static_m.append(mass)
+            static_u.append(u)
+            static_d.append(float(np.mean(d)))
+            if abs(u) < 1.0 and rest_d0 is None:
+                rest_d0 = float(np.mean(d))
+        elif kind == "step":
+            t, d = window(seg["start_s"], seg["end_s"])
+            if t.size < 20:
+                raise BagError(f"{path}: step segment {k} has {t.size} samples")
+            steps.append(StepData(t - t[0], voltage_at(t), d, mass, source=f"{path} step segment {k}"))
+        elif kind == "sine":
+            f = float(seg["frequency_Hz"])
+            t, d = window(seg["measure_start_s"], seg["measure_end_s"])
+            if t.size < 20:
+                raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
+            s = SineSeries(f, t - t[0], voltage_at(t), d, source=f"{path} sine {f:g} Hz")
+            series.append((s, float(seg["amplitude_V"])))
+        elif kind == "rest":
+            continue
+        else:
+            raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
+    if rest_d0 is None:  # the rest position before the first command
+        rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
+    static = [StaticData(np.array(static_m), np.array(static_u), np.array(static_d),
+                         source=f"{path} static segments")] if static_m else []
+    sines = []
+    if series:
+        freqs = np.array([s.frequency_Hz for s, _ in series])
+        amps = np.array([a for _, a in series])
+        rms = np.array([s.displacement_rms(rest_d0) for s, _ in series])
+        sines = [SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, rest_d0),
+                          series=tuple(s for s, _ in series), source=f"{path} sine segments")]
+    geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
+    try:
+        return ExperimentSet(
+            membrane=str(info.get("membrane_name", base.name)), geometry=geometry, mass_kg=mass,
+            static=static, steps=steps, sines=sines, base_parameters=base, base_reference=str(membrane_ref),
+            folder=Path(path),
+        )
+    except ExperimentError as exc:
+        raise BagError(f"{path}: {exc}") from None

@@ -1,0 +1,337 @@
+"""identifier_node: runs an experiment protocol on the rig, records an MCAP bag, identifies offline.
+
+1. Checks before any high voltage: the bag directory is writable and the disk has
+   ``min_free_mb``; the protocol's peak voltage is within ``max_voltage_V`` (if set).
+2. Waits (``wait_for_rig_s``) until the amplifier reports an enabled output and displacement
+   flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.protocols`) at
+   ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
+   and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
+3. Records every rig topic (``voltage_cmd``, ``voltage``, ``displacement``,
+   ``displacement_predicted``) as raw CDR with the publishers' offered QoS, in a rosbag2 MCAP
+   bag (``output_dir/<run>/bag``), flushed at least once a second.
+4. At the end: 0 V, bag closed, then in a background thread the offline identification
+   (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
+
+Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. ``~/abort``
+(std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
+closed with everything recorded so far (metadata ``aborted: true``), no identification.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import time
+import traceback
+from datetime import datetime
+from pathlib import Path
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import BatteryState, Range
+from std_msgs.msg import Float64, String
+from std_srvs.srv import Trigger
+
+from ..bag import BagError, BagWriter, QosProfile, check_writable, command_qos, sensor_data_qos
+from ..bag.extract import EXPERIMENT_METADATA
+from ..protocols import ProtocolError, load_protocol
+from .common import (
+    COMMAND_QOS,
+    LATCHED_QOS,
+    SENSOR_QOS,
+    TOPIC_DISPLACEMENT,
+    TOPIC_DISPLACEMENT_PREDICTED,
+    TOPIC_VOLTAGE,
+    TOPIC_VOLTAGE_CMD,
+    declare_bool,
+    declare_float,
+    declare_str,
+)
+
+__all__ = ["IdentifierNode", "main", "qos_to_bag"]
+
+RECORDED = (
+    (TOPIC_VOLTAGE_CMD, "std_msgs/msg/Float64", Float64, COMMAND_QOS),
+    (TOPIC_VOLTAGE, "sensor_msgs/msg/BatteryState", BatteryState, SENSOR_QOS),
+    (TOPIC_DISPLACEMENT, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
+    (TOPIC_DISPLACEMENT_PREDICTED, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
+)
+
+
+def qos_to_bag(profile) -> QosProfile:
+    """An rclpy QoSProfile (a publisher's offered QoS) as the bag's QoS description."""
+    history = "keep_all" if profile.history == HistoryPolicy.KEEP_ALL else "keep_last"
+    reliability = "best_effort" if profile.reliability == ReliabilityPolicy.BEST_EFFORT else "reliable"
+    durability = "transient_local" if profile.durability == DurabilityPolicy.TRANSIENT_LOCAL else "volatile"
+    return QosProfile(history=history, depth=int(profile.depth), reliability=reliability, durability=durability)
+
+
+class IdentifierNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("identifier_node", **kwargs)
+        self.protocol_ref = declare_str(self, "protocol", "paper", "protocol name in config/protocols or a YAML path")
+        self.output_dir = Path(declare_str(self, "output_dir", "runs", "folder of the runs"))
+        run_name = declare_str(self, "run_name", "", "name of this run (default: date and time)")
+        self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends")
+        self.exit_when_done = declare_bool(self, "exit_when_done", False, "stop the node when done (demo)")
+        self.command_rate_hz = declare_float(self, "command_rate_hz", 500.0, "voltage_cmd rate, Hz", 10.0, 5000.0)
+        self.wait_for_rig_s = declare_float(self, "wait_for_rig_s", 30.0,
+                                            "wait this long for the amplifier and the sensor, s", 0.0, 600.0)
+        self.min_free_mb = declare_float(self, "min_free_mb", 100.0, "free disk needed before starting, MB", 0.0, 1e6)
+        self.max_voltage_V = declare_float(self, "max_voltage_V", 0.0, "refuse protocols above this (0: no check)",
+                                           0.0, 30000.0)
+        self.bag_format = declare_str(self, "rosbag2_format", "jazzy", "jazzy (Jazzy+) or humble metadata")
+        self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
+        self.state = "starting"
+        self.error = ""
+        self.summary: dict = {}
+        self.finished = False
+        self.exit_code = 0
+        self.segment_index = -1
+        self.t0_ns: int | None = None
+        self.rig_seen = {"voltage_enabled": False, "displacement": False}
+        self.wait_started = time.monotonic()
+        self.lock = threading.Lock()
+        self.bag: BagWriter | None = None
+        try:
+            self.protocol = load_protocol(self.protocol_ref)
+            self.segments = self.protocol.schedule(self.max_voltage_V or None)
+        except ProtocolError as exc:
+            raise SystemExit(f"identifier_node: parameter 'protocol': {exc}") from None
+        self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
+        self.bag_dir = self.run_dir / "bag"
+        self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
+        self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
+        self.segment_pub = self.create_publisher(String, "~/segment", LATCHED_QOS)
+        self.create_service(Trigger, "~/abort", self.on_abort)
+        # Pre-flight: nothing is commanded unless the bag can be written.
+        try:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            check_writable(self.bag_dir, int(self.min_free_mb * 1e6))
+        except (BagError, OSError) as exc:
+            self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
+            return
+        self.open_bag()
+        self.create_timer(1.0 / self.command_rate_hz, self.on_tick)
+        self.create_timer(0.5, self.publish_status)
+        self.get_logger().info(
+            f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
+            f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
+        )
+
+    # ------------------------------------------------------------------ recording
+    def open_bag(self) -> None:
+        self.bag = BagWriter(self.bag_dir, flush_period_s=0.5, rosbag2_format=self.bag_format,
+                             min_free_bytes=int(self.min_free_mb * 1e6))
+        self.topic_names = {}
+        for rel, type_name, msg_type, qos in RECORDED:
+            full = self.resolve_topic_name(rel)
+            self.topic_names[rel] = full
+            self.bag.add_topic(full, type_name, [qos_to_bag(qos)])
+            # deep queues: the recorder must not drop a burst (best effort drops only on overflow)
+            record_qos = QoSProfile(reliability=qos.reliability, durability=qos.durability,
+                                    history=HistoryPolicy.KEEP_LAST, depth=5000)
+            self.create_subscription(msg_type, rel, self._recorder(full), record_qos, raw=True)
+        self.segment_topic = self.resolve_topic_name("~/segment")
+        self.bag.add_topic(self.segment_topic, "std_msgs/msg/String", [qos_to_bag(LATCHED_QOS)])
+        self.ready_subs = [
+            self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_voltage_seen, SENSOR_QOS),
+            self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement_seen, SENSOR_QOS),
+        ]
+
+    def _recorder(self, topic: str):
+        def record(data: bytes) -> None:
+            bag = self.bag
+            if bag is None or bag.closed:
+                return
+            try:
+                bag.write_serialized(topic, data, self.get_clock().now().nanoseconds)
+            except BagError as exc:
+                self.get_logger().error(f"recording {topic} failed: {exc}", throttle_duration_sec=2.0)
+        return record
+
+    def on_voltage_seen(self, msg: BatteryState) -> None:
+        if msg.present:
+            self.rig_seen["voltage_enabled"] = True
+
+    def on_displacement_seen(self, _msg: Range) -> None:
+        self.rig_seen["displacement"] = True
+
+    def record_experiment_metadata(self, completed: int, aborted: bool) -> None:
+        self.bag.add_metadata(EXPERIMENT_METADATA, {
+            "protocol": self.protocol.name,
+            "protocol_source": str(self.protocol.source),
+            "membrane": self.membrane_override or self.protocol.membrane,
+            "mass_kg": repr(self.protocol.mass_kg),
+            "t0_ns": str(self.t0_ns),
+            "segments_json": json.dumps([s.to_dict() for s in self.segments]),
+            "segments_completed": str(completed),
+            "aborted": "true" if aborted else "false",
+            "command_rate_hz": repr(self.command_rate_hz),
+        })
+
+    # ------------------------------------------------------------------ protocol
+    def now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def on_tick(self) -> None:
+        if self.state == "starting":
+            self.state = "waiting"
+            self.wait_started = time.monotonic()
+        if self.state == "waiting":
+            self.cmd_pub.publish(Float64(data=0.0))
+            if all(self.rig_seen.values()):
+                self.state = "running"
+                for sub in self.ready_subs:  # only needed to start: halve the callbacks
+                    self.destroy_subscription(sub)
+                self.ready_subs = []
+                self.t0_ns = self.now_ns()
+                self.record_experiment_metadata(0, aborted=False)
+                self.get_logger().info("rig ready: protocol started")
+            elif time.monotonic() - self.wait_started > self.wait_for_rig_s:
+                missing = [k for k, v in self.rig_seen.items() if not v]
+                self.finish_recording(aborted=True)
+                self.fail(f"rig not ready after {self.wait_for_rig_s:g} s (missing: {missing}); is the amplifier "
+                          "active and the sensor publishing? nothing was commanded")
+            return
+        if self.state != "running":
+            return
+        t = (self.now_ns() - self.t0_ns) * 1e-9
+        k = self.segment_index if self.segment_index >= 0 else 0
+        while k < len(self.segments) and t >= self.segments[k].end_s:
+            k += 1
+        if k >= len(self.segments):
+            self.cmd_pub.publish(Float64(data=0.0))
+            self.segment_index = len(self.segments)
+            self.get_logger().info("protocol complete")
+            self.finish_recording(aborted=False)
+            self.start_identification()
+            return
+        if k != self.segment_index:
+            self.segment_index = k
+            seg = self.segments[k]
+            event = json.dumps({"event": "segment_start", **seg.to_dict()})
+            self.segment_pub.publish(String(data=event))
+            self.bag.write(self.segment_topic, {"data": event}, self.now_ns())
+            self.get_logger().info(
+                f"segment {k + 1}/{len(self.segments)}: {seg.kind} "
+                + ", ".join(f"{key} {val:g}" for key, val in seg.info.items() if isinstance(val, (int, float)))
+            )
+        # one command period ahead: the amplifier applies it at its next update, on time
+        self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + 1.0 / self.command_rate_hz))))
+
+    def finish_recording(self, aborted: bool) -> None:
+        with self.lock:
+            if self.bag is None or self.bag.closed:
+                return
+            completed = max(0, min(self.segment_index, len(self.segments)))
+            if self.t0_ns is not None:
+                self.record_experiment_metadata(completed, aborted)
+            path = self.bag.close()
+            self.summary["bag"] = str(path)
+            self.summary["messages"] = self.bag.topic_message_counts()
+            self.get_logger().info(f"bag closed: {path} ({self.bag.message_count} messages)")
+        self.state = "aborted" if aborted else "recorded"
+
+    def start_identification(self) -> None:
+        if not self.identify:
+            self.done()
+            return
+        self.state = "identifying"
+        threading.Thread(target=self.run_identification, daemon=True).start()
+
+    def run_identification(self) -> None:
+        t_start = time.perf_counter()
+        try:
+            from ..identify.pipeline import identify_bag
+
+            result = identify_bag(self.bag_dir, self.run_dir, membrane=self.membrane_override or None,
+                                  progress=lambda msg: self.get_logger().info(msg))
+            self.summary.update(result)
+            self.summary["identification_wall_time_s"] = time.perf_counter() - t_start
+            self.get_logger().info(
+                f"identified in {self.summary['identification_wall_time_s']:.1f} s: parameters "
+                f"{self.summary.get('params_file')}, report {self.summary.get('report_dir')}"
+            )
+            self.done()
+        except Exception as exc:  # noqa: BLE001 - report, keep the bag
+            self.get_logger().error(traceback.format_exc())
+            self.fail(f"identification failed: {exc}; the bag is kept at {self.bag_dir}")
+
+    def done(self) -> None:
+        self.state = "done"
+        self.write_summary()
+        self.publish_status()
+        self.finished = self.exit_when_done
+
+    def fail(self, message: str) -> None:
+        self.error = message
+        self.state = "error"
+        self.exit_code = 1
+        self.get_logger().error(message)
+        self.write_summary()
+        self.publish_status()
+        self.finished = self.exit_when_done
+
+    def write_summary(self) -> None:
+        self.summary.update({"state": self.state, "error": self.error, "run_dir": str(self.run_dir),
+                             "protocol": self.protocol.name})
+        try:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            (self.run_dir / "summary.json").write_text(json.dumps(self.summary, indent=2, default=str))
+        except OSError as exc:
+            self.get_logger().error(f"cannot write summary.json: {exc}")
+
+    def on_abort(self, _req, resp):
+        resp.success = self.abort("abort service")
+        resp.message = f"aborted; bag kept at {self.bag_dir}" if resp.success else f"nothing to abort ({self.state})"
+        return resp
+
+    def abort(self, reason: str) -> bool:
+        if self.state not in ("waiting", "running", "starting"):
+            return False
+        for _ in range(3):
+            self.cmd_pub.publish(Float64(data=0.0))
+        self.get_logger().warning(f"aborted ({reason}): 0 V commanded, closing the bag")
+        self.finish_recording(aborted=True)
+        self.error = f"aborted by {reason}"
+        self.done()
+        return True
+
+    def publish_status(self) -> None:
+        total = self.segments[-1].end_s if self.segments else 0.0
+        elapsed = (self.now_ns() - self.t0_ns) * 1e-9 if (self.t0_ns and self.state == "running") else None
+        status = {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
+                  "elapsed_s": elapsed, "duration_s": total,
+                  "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
+                  "bag": str(self.bag_dir), "error": self.error}
+        self.status_pub.publish(String(data=json.dumps(status)))
+
+    def shutdown_safely(self) -> None:
+        """SIGINT/SIGTERM: like the abort service (0 V, bag closed with everything so far)."""
+        if not self.abort("shutdown"):
+            self.finish_recording(aborted=self.state not in ("recorded", "identifying", "done"))
+
+
+def main(args=None) -> None:
+    import sys
+
+    from .runner import run_nodes
+
+    holder = {}
+
+    def factory():
+        holder["node"] = IdentifierNode()
+        return holder["node"]
+
+    run_nodes([factory], args=args if args is not None else sys.argv)
+    node = holder.get("node")
+    if node is not None:
+        if node.state == "identifying":  # Ctrl-C during the offline fit: the voltage is already 0 V
+            print("identifier_node: waiting for the identification to finish (Ctrl-C again to stop)")
+            while node.state == "identifying":
+                time.sleep(0.1)
+        sys.exit(node.exit_code)
+
+
+if __name__ == "__main__":
+    main()
