@@ -317,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_sweep)
 
-    for module in ("dea_ros.identify.commands", "dea_ros.bag.commands", "dea_ros.rig"):
+    for module in ("dea_ros.identify.commands", "dea_ros.bag.commands", "dea_ros.replay", "dea_ros.rig"):
         try:
             mod = __import__(module, fromlist=["register"])
         except ImportError:
@@ -326,6 +326,12 @@ def build_parser() -> argparse.ArgumentParser:
         if register is not None:
             register(sub)
     return parser
+
+
+def _bag_error():
+    from .bag import BagError
+
+    return BagError
 
 
 def main(argv=None) -> int:
@@ -337,7 +343,7 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except (CliError, ParameterError, NoEquilibriumError, HarmonicBalanceError, ValueError,
-            FileNotFoundError) as exc:
+            FileNotFoundError, _bag_error()) as exc:
         print(f"dea-ros {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -92,6 +92,7 @@ class IdentifierNode(Node):
         self.wait_started = time.monotonic()
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
+        self.skipped_before_clock = 0
         try:
             self.protocol = load_protocol(self.protocol_ref)
             self.segments = self.protocol.schedule(self.max_voltage_V or None)
@@ -143,8 +144,12 @@ class IdentifierNode(Node):
             bag = self.bag
             if bag is None or bag.closed:
                 return
+            now_ns = self.get_clock().now().nanoseconds
+            if now_ns == 0:  # simulated time before the first /clock: no valid log time yet
+                self.skipped_before_clock += 1
+                return
             try:
-                bag.write_serialized(topic, data, self.get_clock().now().nanoseconds)
+                bag.write_serialized(topic, data, now_ns)
             except BagError as exc:
                 self.get_logger().error(f"recording {topic} failed: {exc}", throttle_duration_sec=2.0)
         return record
@@ -242,7 +247,7 @@ class IdentifierNode(Node):
     def run_identification(self) -> None:
         t_start = time.perf_counter()
         try:
-            from ..identify.pipeline import identify_bag
+            from ..identify.from_bag import identify_bag
 
             result = identify_bag(self.bag_dir, self.run_dir, membrane=self.membrane_override or None,
                                   progress=lambda msg: self.get_logger().info(msg))

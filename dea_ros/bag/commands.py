@@ -1,0 +1,58 @@
+"""``dea-ros bag info BAG`` and ``dea-ros bag recover BAG`` (no ROS needed)."""
+from __future__ import annotations
+
+import json
+
+__all__ = ["register"]
+
+
+def cmd_bag_info(args) -> int:
+    from . import BagReader
+
+    with BagReader(args.bag) as bag:
+        topics = bag.topics()
+        meta = bag.metadata()
+        out = {
+            "path": str(bag.path),
+            "files": [str(f) for f in bag.files],
+            "messages": bag.message_count,
+            "start_time_ns": bag.start_time_ns,
+            "end_time_ns": bag.end_time_ns,
+            "duration_s": (bag.end_time_ns - bag.start_time_ns) * 1e-9 if bag.message_count else 0.0,
+            "truncated": bag.truncated,
+            "topics": {name: {"type": t.type, "messages": t.message_count,
+                              "qos": [q.reliability + "/" + q.durability + f"/depth {q.depth}" for q in t.qos_profiles]}
+                       for name, t in topics.items()},
+            "metadata": sorted(meta),
+        }
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"bag {out['path']}: {out['messages']} messages, {out['duration_s']:.3f} s"
+          f"{' (TRUNCATED: run dea-ros bag recover)' if out['truncated'] else ''}")
+    for name, t in out["topics"].items():
+        print(f"  {name:<40} {t['type']:<32} {t['messages']:>8}  {', '.join(t['qos'])}")
+    if out["metadata"]:
+        print(f"  metadata records: {', '.join(out['metadata'])}")
+    return 0
+
+
+def cmd_bag_recover(args) -> int:
+    from . import recover_bag
+
+    report = recover_bag(args.bag)
+    print(report)
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("bag", help="inspect or recover an MCAP bag")
+    sub = p.add_subparsers(dest="bag_command", metavar="ACTION")
+    sub.required = True
+    info = sub.add_parser("info", help="topics, counts, QoS, duration")
+    info.add_argument("bag")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(func=cmd_bag_info)
+    rec = sub.add_parser("recover", help="make a bag readable after the recorder was killed")
+    rec.add_argument("bag")
+    rec.set_defaults(func=cmd_bag_recover)

@@ -1,0 +1,73 @@
+"""Offline identification from a bag: bag -> experiments -> two-stage fit -> params.yaml + report.
+
+Used by identifier_node when its protocol ends and by ``dea-ros identify BAG``. Works for bags
+recorded by identifier_node and for any rosbag2 MCAP bag with compatible topic types when the
+experiments are described by a segments YAML (see :mod:`dea_ros.bag.extract`).
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from ..bag.extract import BagTopics, experiments_from_bag
+
+__all__ = ["identify_bag", "is_bag"]
+
+
+def is_bag(path) -> bool:
+    """A bag directory (metadata.yaml or *.mcap inside) or an .mcap file."""
+    p = Path(path)
+    if p.is_file():
+        return p.suffix == ".mcap"
+    return p.is_dir() and ((p / "metadata.yaml").is_file() or any(p.glob("*.mcap")))
+
+
+def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = BagTopics(),
+                 segments_file=None, progress: Callable[[str], None] | None = None, plots: bool = True,
+                 **identify_options) -> dict:
+    """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict."""
+    from .pipeline import identify
+    from .report import write_report
+
+    say = progress or (lambda _msg: None)
+    t0 = time.perf_counter()
+    experiments = experiments_from_bag(bag, topics=topics, segments_file=segments_file, membrane=membrane)
+    t_extract = time.perf_counter() - t0
+    say(f"extracted from the bag in {t_extract:.2f} s: {experiments.summary()}")
+
+    def fit_progress(event):
+        if isinstance(event, dict) and event.get("stage") and event.get("iteration") is not None \
+                and event["iteration"] % 10 == 0:
+            say(f"{event['stage']}: iteration {event['iteration']}, cost {event.get('cost', float('nan')):.4g}")
+
+    t1 = time.perf_counter()
+    result = identify(experiments, progress=fit_progress, **identify_options)
+    t_fit = time.perf_counter() - t1
+    out = Path(out_dir)
+    report_dir = out / "report"
+    paths = write_report(result, report_dir, plots=plots)
+    params_file = out / "params.yaml"
+    params_file.write_text(Path(paths["params"]).read_text())
+    p = result.parameters
+    metrics = result.evaluation
+    headline = [
+        f"eps_r {p.relative_permittivity:.4g}, k1 {p.k1_Pa / 1e6:.4g} MPa, eta1 {p.eta1_Pa_s / 1e6:.4g} MPa s, "
+        f"eta2 {p.eta2_Pa_s / 1e3:.4g} kPa s",
+    ]
+    peak = metrics.get("resonance_peak_Hz") or metrics.get("resonance") if isinstance(metrics, dict) else None
+    if peak:
+        headline.append(f"resonance peak: {peak}")
+    if result.warnings:
+        headline += [f"warning: {w}" for w in result.warnings[:5]]
+    return {
+        "params_file": str(params_file),
+        "report_dir": str(report_dir),
+        "report_file": str(paths["report"]),
+        "figures": sorted(str(v) for k, v in paths.items() if str(k).endswith(".png")),
+        "parameters": p.to_dict(),
+        "metrics": result.to_dict().get("metrics"),
+        "warnings": list(result.warnings),
+        "timings_s": {"extract": t_extract, "fit": t_fit, "report": paths.get("report_s", 0.0)},
+        "headline": headline,
+    }
