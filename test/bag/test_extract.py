@@ -1,0 +1,115 @@
+"""Bag -> experiments: a bag written from the model (no ROS) is cut back into the experiments."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from dea_ros.bag import BagError, BagWriter, sensor_data_qos
+from dea_ros.bag.extract import EXPERIMENT_METADATA, experiments_from_bag
+from dea_ros.model import preset, static_equilibrium
+from dea_ros.protocols import load_protocol
+from dea_ros.solvers import SampledVoltage, SinePeriodic, simulate, solve_native
+
+T0_NS = 1_700_000_000_000_000_000
+
+
+def stamp(t_ns):
+    return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """The 'test' protocol applied to A2 (ZOH at 500 Hz), laser at 1 kHz with 1 um noise."""
+    proto = load_protocol("test")
+    segs = proto.schedule()
+    duration = segs[-1].end_s
+    tv = np.arange(0.0, duration, 2e-3)
+    seg_idx = np.searchsorted([s.end_s for s in segs], tv, side="right").clip(0, len(segs) - 1)
+    uv = np.array([segs[k].voltage_at(t) for k, t in zip(seg_idx, tv)])
+    td = np.arange(0.0, duration, 1e-3)
+    resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="zoh"), duration, t_eval=td)
+    rng = np.random.default_rng(3)
+    d = resp.displacement_m + rng.normal(0, 1e-6, td.size)
+    path = tmp_path_factory.mktemp("bags") / "run"
+    with BagWriter(path) as bag:
+        bag.add_topic("/dea/voltage", "sensor_msgs/msg/BatteryState", sensor_data_qos(50))
+        bag.add_topic("/dea/displacement", "sensor_msgs/msg/Range", sensor_data_qos(50))
+        bag.add_metadata(EXPERIMENT_METADATA, {
+            "protocol": "test", "membrane": "A2", "mass_kg": "0.003", "t0_ns": str(T0_NS),
+            "segments_json": json.dumps([s.to_dict() for s in segs]), "aborted": "false",
+            "segments_completed": str(len(segs))})
+        events = sorted([(int(t * 1e9), "v", u) for t, u in zip(tv, uv)] +
+                        [(int(t * 1e9), "d", x) for t, x in zip(td, d)])
+        for t_ns, kind, value in events:
+            t_abs = T0_NS + t_ns
+            if kind == "v":
+                bag.write("/dea/voltage", {"header": {"stamp": stamp(t_abs), "frame_id": "amp"},
+                                           "voltage": value, "present": True}, t_abs)
+            else:
+                bag.write("/dea/displacement", {"header": {"stamp": stamp(t_abs), "frame_id": "laser"},
+                                                "radiation_type": 1, "range": value}, t_abs)
+    return path, segs
+
+
+def test_experiments_are_cut_from_the_bag(recorded):
+    path, segs = recorded
+    exp = experiments_from_bag(path)
+    a2 = preset("A2")
+    static = exp.static[0]
+    np.testing.assert_allclose(static.voltage_V, [0, 2000, 2500], atol=1e-3)
+    # the holds are short (2.5 s) against the 0.93 s creep: within a few um of the equilibrium
+    eq = static_equilibrium(a2, static.voltage_V).displacement_m
+    assert np.max(np.abs(static.displacement_m - eq)) < 5e-6
+    step = exp.steps[0]
+    assert step.final_V == pytest.approx(2200) and step.initial_V == 0
+    assert step.n_samples == pytest.approx(3900, abs=5)
+    sines = exp.sines[0]
+    assert list(sines.frequency_Hz) == [3.0, 8.5, 9.0, 9.5, 10.0, 11.0]
+    d0 = static.displacement_m[0]
+    rms_3hz = solve_native(a2, SinePeriodic(2500.0, 3.0), 10).displacement_rms(static_equilibrium(a2, 0).displacement_m)
+    assert sines.d_rms_m[0] == pytest.approx(rms_3hz, rel=0.03)
+    assert sines.series[0].frequency_Hz == 3.0 and d0 > 0
+    assert exp.mass_kg == 0.003 and exp.geometry["thickness_m"] == a2.thickness_m
+
+
+def test_foreign_bag_needs_a_segments_file(recorded, tmp_path):
+    path, segs = recorded
+    # a bag without the identifier's metadata
+    plain = tmp_path / "plain"
+    with BagWriter(plain) as bag:
+        bag.add_topic("/rig/u", "std_msgs/msg/Float64")
+        bag.add_topic("/rig/d", "std_msgs/msg/Float64")
+        for k in range(3000):
+            t = T0_NS + k * 1_000_000
+            bag.write("/rig/u", {"data": 0.0 if k < 1000 else 2200.0}, t)
+            bag.write("/rig/d", {"data": 7.3e-4 if k < 1000 else 8.4e-4}, t)
+    from dea_ros.bag.extract import BagTopics
+
+    topics = BagTopics(voltage="/rig/u", displacement="/rig/d")
+    with pytest.raises(BagError, match="segments YAML"):
+        experiments_from_bag(plain, topics=topics)
+    seg_file = tmp_path / "segments.yaml"
+    seg_file.write_text(yaml.safe_dump({"membrane": "A2", "mass_kg": 0.003, "t0_s": T0_NS * 1e-9, "segments": [
+        {"kind": "static", "voltage_V": 0, "measure_start_s": 0.5, "measure_end_s": 0.9},
+        {"kind": "static", "voltage_V": 2200, "measure_start_s": 2.5, "measure_end_s": 2.9},
+        {"kind": "step", "start_s": 0.5, "end_s": 2.9}]}))
+    exp = experiments_from_bag(plain, topics=topics, segments_file=seg_file)
+    np.testing.assert_allclose(exp.static[0].displacement_m, [7.3e-4, 8.4e-4])
+    assert exp.steps[0].final_V == 2200.0
+
+
+def test_missing_and_mistyped_topics(recorded, tmp_path):
+    path, _ = recorded
+    from dea_ros.bag.extract import BagTopics
+
+    with pytest.raises(BagError, match="no displacement topic '/dea/laser'"):
+        experiments_from_bag(path, topics=BagTopics(displacement="/dea/laser"))
+    odd = tmp_path / "odd"
+    with BagWriter(odd) as bag:
+        bag.add_topic("/dea/voltage", "std_msgs/msg/String")
+        bag.add_topic("/dea/displacement", "std_msgs/msg/Float64")
+        bag.write("/dea/voltage", {"data": "x"}, T0_NS)
+        bag.write("/dea/displacement", {"data": 1.0}, T0_NS)
+    with pytest.raises(BagError, match="type std_msgs/msg/String"):
+        experiments_from_bag(odd)
