@@ -55,9 +55,14 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
         f"eps_r {p.relative_permittivity:.4g}, k1 {p.k1_Pa / 1e6:.4g} MPa, eta1 {p.eta1_Pa_s / 1e6:.4g} MPa s, "
         f"eta2 {p.eta2_Pa_s / 1e3:.4g} kPa s",
     ]
-    peak = metrics.get("resonance_peak_Hz") or metrics.get("resonance") if isinstance(metrics, dict) else None
-    if peak:
-        headline.append(f"resonance peak: {peak}")
+    for fr in (metrics.get("frequency_response") or []) if isinstance(metrics, dict) else []:
+        for res in fr.get("resonance", []):
+            headline.append(
+                f"resonance at {res['amplitude_V']:g} V: measured {res['measured_peak_Hz']:.3f} Hz, "
+                f"model {res['simulated_peak_Hz']:.3f} Hz ({res['error_percent']:+.2f} %)")
+    for k, st in enumerate(metrics.get("steps", []) if isinstance(metrics, dict) else []):
+        headline.append(f"step {k + 1}: model vs measured RMS error {st['rms_error_um']:.2f} um "
+                        f"(IAE {st['IAE_mm_s']:.4f} mm s)")
     if result.warnings:
         headline += [f"warning: {w}" for w in result.warnings[:5]]
     return {

@@ -12,7 +12,9 @@
 4. At the end: 0 V, bag closed, then in a background thread the offline identification
    (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
 
-Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. ``~/abort``
+Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. Every tick ends with a
+``~/tick_done`` (std_msgs/Header, stamp = the tick's time): in simulated time the mock rig waits
+for it before advancing (lockstep), so the commands reach the amplifier on time. ``~/abort``
 (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
 """
@@ -28,7 +30,7 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import BatteryState, Range
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
 from ..bag import BagError, BagWriter, QosProfile, check_writable, command_qos, sensor_data_qos
@@ -101,6 +103,7 @@ class IdentifierNode(Node):
         self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
         self.bag_dir = self.run_dir / "bag"
         self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
+        self.ack_pub = self.create_publisher(Header, "~/tick_done", 10)
         self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
         self.segment_pub = self.create_publisher(String, "~/segment", LATCHED_QOS)
         self.create_service(Trigger, "~/abort", self.on_abort)
@@ -184,6 +187,7 @@ class IdentifierNode(Node):
             self.wait_started = time.monotonic()
         if self.state == "waiting":
             self.cmd_pub.publish(Float64(data=0.0))
+            self.publish_ack()
             if all(self.rig_seen.values()):
                 self.state = "running"
                 for sub in self.ready_subs:  # only needed to start: halve the callbacks
@@ -223,6 +227,14 @@ class IdentifierNode(Node):
             )
         # one command period ahead: the amplifier applies it at its next update, on time
         self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + 1.0 / self.command_rate_hz))))
+        self.publish_ack()
+
+    def publish_ack(self) -> None:
+        """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = now)."""
+        ack = Header()
+        ack.stamp = self.get_clock().now().to_msg()
+        ack.frame_id = self.get_name()
+        self.ack_pub.publish(ack)
 
     def finish_recording(self, aborted: bool) -> None:
         with self.lock:

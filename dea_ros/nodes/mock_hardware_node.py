@@ -31,7 +31,9 @@ import time
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Header
 from sensor_msgs.msg import Range
 
 from ..hardware.amplifier_backends import MockAmplifierReceiver
@@ -151,6 +153,10 @@ class MockHardwareNode(Node):
                                      "simulated time: never advance before the amplifier acted on the last tick")
         self.lockstep_timeout_s = declare_float(self, "lockstep_timeout_s", 0.5,
                                                 "wall-clock wait for the amplifier per tick, s", 0.001, 10.0)
+        acks = self.declare_parameter(
+            "lockstep_topics", ["identifier_node/tick_done"],
+            ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
+                                            "simulated clock advances (lockstep)")).value
         seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
         if self.laser_output not in ("topic", "emulator", "both"):
             raise SystemExit(f"mock_hardware_node: parameter 'laser_output': topic, emulator or both, "
@@ -167,6 +173,10 @@ class MockHardwareNode(Node):
         self.clock_time_s: float | None = None   # last /clock published
         self.tick_wall_s = time.monotonic()
         self.lockstep_timeouts = 0
+        self.ack_times: dict = {}
+        if self.publish_clock and self.lockstep:
+            for topic in acks:
+                self.create_subscription(Header, topic, self.on_ack(topic), 10)
         # simulated time starts at the wall-clock date (plausible bag stamps); real time runs on monotonic
         t0 = time.time() if self.publish_clock else time.monotonic()
         self.sim = RigSimulator(params, self.physics_dt_s, t0, self.noise_m, quant, latency, seed)
@@ -243,12 +253,27 @@ class MockHardwareNode(Node):
         self.sim.advance_to(now)
         self.emit_samples(now, self.mono_to_ros)
 
+    def waiting_for_participants(self) -> bool:
+        """True while the amplifier or an active lockstep participant has not processed the last tick."""
+        t = self.clock_time_s - 1e-9
+        if self.amp_time_s is not None and self.amp_time_s < t:
+            return True
+        now = time.monotonic()
+        for topic, (stamp_s, wall_s) in self.ack_times.items():
+            if stamp_s < t and now - wall_s < self.lockstep_timeout_s:
+                return True  # an active participant (acked within the timeout) is behind
+        return False
+
+    def on_ack(self, topic: str):
+        def record(msg: Header) -> None:
+            self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
+        return record
+
     def on_sim_tick(self) -> None:
         self.poll_amplifier()
         if (self.sim.t_s - self.sim_t0) > (time.monotonic() - self.wall_t0) * self.real_time_factor:
             return  # ahead of the requested speed
-        if self.lockstep and self.amp_time_s is not None and self.clock_time_s is not None \
-                and self.amp_time_s < self.clock_time_s - 1e-9:
+        if self.lockstep and self.clock_time_s is not None and self.waiting_for_participants():
             # the amplifier has not acted on the last tick yet: do not run ahead of the controller
             waited = time.monotonic() - self.tick_wall_s
             if waited < self.lockstep_timeout_s:

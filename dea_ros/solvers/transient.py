@@ -2,42 +2,47 @@
 
 Why: the dynamic identification (paper eqs. 22-23) simulates a ~2-5 s voltage step
 sampled at 1 kHz at every objective evaluation. Adaptive forward integration
-(:func:`~dea_ros.solvers.integrate.simulate`, ~0.1 s per step response) would
-dominate the cost of the fit; this solver needs a few milliseconds and also
-returns the exact forward sensitivities dx/d(ln k1, ln eta1, ln eta2) that a
-Jacobian-based optimizer (``scipy.optimize.least_squares``) needs.
+(:func:`~dea_ros.solvers.integrate.simulate`, ~0.15 s per step response) would
+dominate the cost of the fit; this solver needs ~10 ms warm-started and also
+returns the exact forward sensitivities dx/d(ln k1, ln eta1, ln eta2) (and, on
+request, along directions of the Ogden coefficients) that a Jacobian-based
+optimizer (``scipy.optimize.least_squares``) needs.
 
 Method
 ------
 The grid is the sampling grid of the experiment, t_0 < t_1 < ... < t_K-1 (one
-interval per sample interval, ``substeps`` > 1 splits each sample interval
+interval per sample interval; ``substeps`` > 1 splits each sample interval
 further). On every interval [t_n, t_n+1] of length h the state equation
-x' = f(x, u) (eqs. 17-18) is discretised by Hermite-Simpson collocation
-(the 3-stage Lobatto IIIA method, order 4, A-stable, symplectic-like phase
-error ~ (omega h)^5 / 720 per step for the lightly damped oscillation), with
-an extra unknown x_m at the interval midpoint::
+x' = f(x, u) (eqs. 17-18) is discretised by Hermite-Simpson collocation (the
+3-stage Lobatto IIIA method: order 4, A-stable, phase error ~ (omega h)^5 / 720
+per step for the lightly damped oscillation) in its compressed form, the
+midpoint state being explicit::
 
-    x_m     = (x_n + x_n+1) / 2 + h/8 (f_n - f_n+1)          (midpoint defect)
-    x_n+1   = x_n + h/6 (f_n + 4 f_m + f_n+1)                  (Simpson defect)
+    x_m     = (x_n + x_n+1) / 2 + h/8 (f_n - f_n+1)
+    R_n     = x_n+1 - x_n - h/6 (f_n + 4 f(x_m) + f_n+1) = 0
 
-and x_0 is the static equilibrium at u(t_0) (eq. 20, the rig at rest before the
-experiment). All 3 + 6 (K - 1) unknowns are solved at once by Newton's method.
-The Jacobian is block-bidiagonal (built from the vectorised analytic df/dx of
-:class:`~dea_ros.model.DEAModel`), stored in LAPACK band format (kl = 8, ku = 5)
-and factorised by ``dgbtrf`` in O(K). A good initial guess (the previous
-solution, e.g. the previous optimizer iterate) converges in 2-3 iterations.
+with x_0 the static equilibrium at u(t_0) (eq. 20: the rig at rest before the
+experiment). All 3 K node states are solved at once by Newton's method with a
+backtracking line search. The Jacobian (chain rule through x_m, from the
+vectorised analytic df/dx of :class:`~dea_ros.model.DEAModel`) is block
+bidiagonal; it is stored in LAPACK band format (kl = 5, ku = 2) and factorised
+by ``dgbtrf`` in O(K). Warm start: the previous solution plus a first-order
+predictor from its sensitivities (theta changed by d theta: x + S d theta), so
+an optimizer step converges in 2-3 Newton iterations. Convergence: the scaled
+Newton step is below ``tol`` = 1e-5 (Newton converges quadratically with an
+observed constant ~0.2, so the remaining error is ~1e-11 of the state scale).
 
 Forward sensitivities: at the converged solution R(X, theta) = 0, so
-dX/dtheta = -J^-1 dR/dtheta, three extra band back-substitutions with the
-factorisation already computed (``dgbtrs``). theta = (ln k1, ln eta1, ln eta2).
+dX/dtheta = -J^-1 dR/dtheta: one more factorisation at the solution and a few
+band back-substitutions (``dgbtrs``). theta = (ln k1, ln eta1, ln eta2), plus
+optional stress directions (the initial rest state moves with those).
 
 Voltage between samples: ``hold="zoh"`` (default; what a DAQ output does, the
 voltage sample u_n holds on [t_n, t_n+1)) or ``"linear"`` (interpolated).
 
-Accuracy (validated against :func:`simulate` with DOP853, rtol 1e-10, on the
-three presets for a 2.2 kV step sampled at 1 kHz over 4.2 s): see
-``test/identify/test_transient.py`` and the benchmark, the max error is below
-0.05 um for h = 1 ms.
+Accuracy (``test/identify/test_transient.py``, ``bench/bench_identify.py``): for a
+2.2 kV step sampled at 1 kHz over 4.2 s, the max difference to DOP853 at rtol 1e-11 is
+0.97 nm (LP1), 1.2 nm (A1, A2); halving h gains the expected ~16x.
 """
 from __future__ import annotations
 
@@ -58,12 +63,16 @@ __all__ = [
     "TransientError",
     "simulate_collocation",
     "DYNAMIC_PARAMETERS",
+    "rhs_log_parameter_derivative",
+    "rhs_stress_derivative",
+    "stress_direction_basis",
+    "rest_state_derivative",
 ]
 
 #: Parameters whose (logarithmic) sensitivities are computed, in this order.
 DYNAMIC_PARAMETERS = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
 
-_KL = 5  # lower bandwidth of the collocation Jacobian (see _band_indices)
+_KL = 5  # lower bandwidth of the collocation Jacobian: rows 3 + 3n + i, columns 3n + j .. 3n + 5
 _KU = 2  # upper bandwidth
 
 
@@ -75,9 +84,10 @@ class TransientError(RuntimeError):
 class TransientSolution:
     """Trajectory on the sample grid.
 
-    ``state`` (3, K) at the sample times; ``sensitivity`` (3, 3, K) with
+    ``state`` (3, K) at the sample times; ``sensitivity`` (3 + q, 3, K) with
     ``sensitivity[p, i, k] = d state_i(t_k) / d ln(theta_p)`` for theta =
-    (k1, eta1, eta2), or None when not requested.
+    (k1, eta1, eta2), then d state_i / d c_j for q stress directions, or None
+    when not requested.
     """
 
     time_s: np.ndarray
@@ -93,25 +103,73 @@ class TransientSolution:
 
     @property
     def displacement_sensitivity_m(self) -> np.ndarray | None:
-        """d d(t_k) / d ln(k1, eta1, eta2), shape (3, K), m."""
+        """d d(t_k) / d ln(k1, eta1, eta2) (then stress directions), shape (3 + q, K), m."""
         return None if self.sensitivity is None else self.sensitivity[:, 0, :]
 
 
-def _band_indices(n_intervals: int):
-    """Band-storage row and column indices of the two 3 x 3 blocks of every interval.
+def rhs_log_parameter_derivative(model: DEAModel, x) -> np.ndarray:
+    """d f(x, u) / d ln(k1, eta1, eta2) at states x (3, ...): shape (3 params, 3 components, ...).
 
-    Unknowns: node states [x_0, x_1, ..., x_N] (3 each, node-major). Rows: the
-    initial condition (3), then the Simpson defect of interval n at rows
-    3 + 3n + i. Block 0 is d R_n / d x_n (columns 3n + j), block 1 is
-    d R_n / d x_n+1 (columns 3n + 3 + j): kl = 5, ku = 2. Returned shapes (N, 2, 3, 3).
+    From eqs. 11-12 and 18: only the viscoelastic strain rate (k1/eta1 (lambda - 1 - eps1))
+    and the acceleration (k1 strain and eta2 phi d' terms) depend on them; u does not enter.
     """
-    n = np.arange(n_intervals)[:, None, None, None]
-    block = np.arange(2)[None, :, None, None]
-    i = np.arange(3)[None, None, :, None]
-    j = np.arange(3)[None, None, None, :]
-    rows = 3 + 3 * n + i + 0 * block + 0 * j
-    cols = 3 * n + 3 * block + j + 0 * i
-    return rows, cols
+    d, e, v = (np.asarray(c, dtype=float) for c in x)
+    s = 1.0 + d * d / model.l0_sq
+    lam = np.sqrt(s)
+    strain = lam - 1.0 - e
+    phi = d / (model.l0_sq * lam)
+    d_over_s = d / s
+    kg = model.force_gain
+    out = np.zeros((3, 3) + d.shape)
+    out[0, 1] = model.relax_rate * strain
+    out[0, 2] = -kg * d_over_s * model.k1 * strain
+    out[1, 1] = -model.relax_rate * strain
+    out[2, 2] = -kg * d_over_s * model.eta2 * phi * v
+    return out
+
+
+def stress_direction_basis(s, directions) -> np.ndarray:
+    """d sigma_h(s) / d c_j for Ogden coefficient directions (beta, gamma) = c_j directions[j] (eq. 10).
+
+    ``directions`` (q, 6): beta_1..3 then gamma_1..3 per direction. Returns (q,) + s.shape, Pa per unit.
+    """
+    dirs = np.atleast_2d(np.asarray(directions, float))
+    s = np.asarray(s, float)
+    out = np.zeros((dirs.shape[0],) + s.shape)
+    for i in range(3):
+        out += dirs[:, i].reshape((-1,) + (1,) * s.ndim) * s ** (i + 1)
+        out -= dirs[:, 3 + i].reshape((-1,) + (1,) * s.ndim) * s ** (-(i + 1))
+    return out
+
+
+def rhs_stress_derivative(model: DEAModel, x, directions) -> np.ndarray:
+    """d f / d c_j for hyperelastic-stress directions (see :func:`stress_direction_basis`):
+    shape (q, 3, ...); only the acceleration (eq. 18) depends on sigma_h."""
+    d = np.asarray(x[0], float)
+    s = 1.0 + d * d / model.l0_sq
+    h = stress_direction_basis(s, directions)
+    out = np.zeros((h.shape[0], 3) + d.shape)
+    out[:, 2] = -model.force_gain * (d / s) * h
+    return out
+
+
+def rest_state_derivative(params: MembraneParameters, voltage_V: float, directions,
+                          displacement_m: float | None = None) -> np.ndarray:
+    """d(rest state [d, eps1, d'])/d c_j for stress directions, by implicit differentiation of
+    eq. 20 at the static equilibrium (eps1 relaxed). Shape (q, 3)."""
+    if displacement_m is None:
+        displacement_m = float(static_equilibrium(params, float(voltage_V)).displacement_m)
+    d = float(displacement_m)
+    dirs = np.atleast_2d(np.asarray(directions, float))
+    if d <= 0.0:
+        return np.zeros((dirs.shape[0], 3))
+    model = DEAModel.from_parameters(params)
+    s = 1.0 + d * d / model.l0_sq
+    h = stress_direction_basis(s, dirs)
+    stiffness = float(model.static_stiffness_N_per_m(d, float(voltage_V) ** 2))
+    dd = -params.c1bar_m * (d / s) * h / stiffness
+    phi = d / (model.l0_sq * np.sqrt(s))
+    return np.column_stack([dd, phi * dd, np.zeros_like(dd)])
 
 
 def _static_key(params: MembraneParameters) -> tuple:
@@ -259,34 +317,29 @@ class TransientCollocation:
                     ab[_KL + _KU + 3 + i - 3 * b - j, col0:col0 + 3 * n:3] = block[:, i, j] * ratio[i, j]
         return res, ab, (xm, am)
 
-    def _parameter_derivative(self, model: DEAModel, nodes, mid, scale) -> np.ndarray:
-        """dR/d ln(k1, eta1, eta2), shape (n_unknowns, 3), scaled residual units."""
-        kg, k1, a, eta2, l0_sq = model.force_gain, model.k1, model.relax_rate, model.eta2, model.l0_sq
+    def _parameter_derivative(self, model: DEAModel, nodes, mid, scale, directions=None,
+                              dx0=None) -> np.ndarray:
+        """dR/d(ln k1, ln eta1, ln eta2[, stress directions]), shape (n_unknowns, 3 + q), scaled."""
         xm, am = mid
+        h = self.h
 
-        def df(x):  # d f / d ln(theta): (3 params, 3 components, N)
-            d, e, v = x
-            s = 1.0 + d * d / l0_sq
-            lam = np.sqrt(s)
-            strain = lam - 1.0 - e
-            phi = d / (l0_sq * lam)
-            d_over_s = d / s
-            out = np.zeros((3, 3) + d.shape)
-            out[0, 1] = a * strain
-            out[0, 2] = -kg * d_over_s * k1 * strain
-            out[1, 1] = -a * strain
-            out[2, 2] = -kg * d_over_s * eta2 * phi * v
+        def g(x):
+            out = rhs_log_parameter_derivative(model, x)
+            if directions is not None:
+                out = np.concatenate([out, rhs_stress_derivative(model, x, directions)], axis=0)
             return out
 
-        h = self.h
-        gl, gm, gr = df(nodes[:, :-1]), df(xm), df(nodes[:, 1:])
+        gl, gm, gr = g(nodes[:, :-1]), g(xm), g(nodes[:, 1:])
+        n_par = gl.shape[0]
         # total derivative of f(x_m) through the explicit midpoint: g_m + A_m dx_m/dtheta
-        dxm = (h / 8.0) * (gl - gr)                               # (3, 3, N)
+        dxm = (h / 8.0) * (gl - gr)                               # (P, 3, N)
         gm_total = gm + np.einsum("nij,pjn->pin", am, dxm)
-        d_end = -(h / 6.0) * (gl + 4.0 * gm_total + gr)           # (3 params, 3, N)
-        out = np.zeros((3, self.n_intervals + 1, 3))
+        d_end = -(h / 6.0) * (gl + 4.0 * gm_total + gr)           # (P, 3, N)
+        out = np.zeros((n_par, self.n_intervals + 1, 3))
         out[:, 1:, :] = np.transpose(d_end / scale[None, :, None], (0, 2, 1))
-        return out.reshape(3, -1).T
+        if dx0 is not None:  # initial-condition rows: R_0 = (x_0 - x0(theta)) / scale
+            out[3:, 0, :] = -np.asarray(dx0, float) / scale[None, :]
+        return out.reshape(n_par, -1).T
 
     # ------------------------------------------------------------------- solve
     def solve(
@@ -296,16 +349,21 @@ class TransientCollocation:
         nodes_guess: np.ndarray | None = None,
         sensitivities: bool = False,
         warm_start: bool = True,
+        stress_directions=None,
     ) -> TransientSolution:
         """Trajectory for ``params`` from ``x0`` (default: static equilibrium at u(t_0)).
 
         ``nodes_guess`` (3, N+1) overrides the warm start (the previous
-        solution of this object). Raises :class:`TransientError` when Newton
-        fails from the warm start *and* from the quasi-static guess.
+        solution of this object). ``stress_directions`` (q, 6): with
+        ``sensitivities``, also d state / d c_j for (beta, gamma) moving along
+        c_j * direction_j (the initial rest state moves too, when x0 is None).
+        Raises :class:`TransientError` when Newton fails from the warm start
+        *and* from the quasi-static guess.
         """
         t_start = time.perf_counter()
         model = DEAModel.from_parameters(params)
-        if x0 is None:
+        rest = x0 is None
+        if rest:
             x0 = self._rest_state(params)
         x0 = np.asarray(x0, float).reshape(3)
         scale = self.state_scale(params, x0)
@@ -343,15 +401,19 @@ class TransientCollocation:
             lu, piv, info = dgbtrf(ab, _KL, _KU)
             if info != 0:
                 raise TransientError(f"singular collocation Jacobian (LAPACK info {info})")
-            rhs = self._parameter_derivative(model, nodes, mid, scale)
+            dx0 = None
+            if stress_directions is not None and rest:
+                dx0 = rest_state_derivative(params, float(self.voltage_V[0]), stress_directions,
+                                            displacement_m=float(x0[0]))
+            rhs = self._parameter_derivative(model, nodes, mid, scale, stress_directions, dx0)
             dz, info = dgbtrs(lu, _KL, _KU, -rhs, piv)
             if info != 0:
                 raise TransientError(f"band back-substitution failed (LAPACK info {info})")
-            dz = dz.reshape(self.n_intervals + 1, 3, 3)  # node, component, param
+            dz = dz.reshape(self.n_intervals + 1, 3, -1)  # node, component, param
             sens_nodes = np.transpose(dz, (2, 1, 0)) * scale[None, :, None]
             sens = sens_nodes[:, :, self.sample_nodes]
         self._last_nodes = nodes
-        self._last_sens = sens_nodes if sensitivities else None
+        self._last_sens = sens_nodes[:3] if sensitivities else None
         self._last_theta = theta
         self._last_static = _static_key(params)
         return TransientSolution(

@@ -1,0 +1,228 @@
+"""Command-line front end of the identification: ``synth`` and ``identify`` subcommands.
+
+``register(subparsers)`` adds both to an :mod:`argparse` sub-parser collection (the
+``dea-ros`` CLI); each sets ``func`` to a handler ``func(args) -> int`` (exit code).
+For testing without the main CLI::
+
+    python -m dea_ros.identify.commands synth --membrane A1 --noise 1e-6 --out /tmp/a1
+    python -m dea_ros.identify.commands identify /tmp/a1 --out /tmp/a1_fit --json
+
+``identify`` also accepts a rosbag2 MCAP bag (dispatched to :mod:`dea_ros.identify.from_bag`,
+which writes OUT/params.yaml and OUT/report/).
+
+Exit codes: 0 success; 2 bad data or arguments (the message names the file, column and
+fix); 1 a fit or solver failure.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["register", "cmd_synth", "cmd_identify", "build_parser", "main"]
+
+
+def _progress_printer(stream):
+    """A progress callback printing one short line per event."""
+    def show(event: dict) -> None:
+        stage = event.get("stage", "?")
+        if stage == "dynamic":
+            msg = (f"[dynamic] evaluation {event['evaluation']:3d}: J = {event['cost']:.6g}  k1 = "
+                   f"{event['k1_Pa']:.4g} Pa  eta1 = {event['eta1_Pa_s']:.4g} Pa s  eta2 = {event['eta2_Pa_s']:.4g} Pa s")
+        elif stage == "static":
+            extra = f" start {event['start']}" if "start" in event else ""
+            rms = f", RMS {event['rms_um']:.3g} um" if "rms_um" in event else ""
+            msg = f"[static] {event.get('method')}{extra}: cost {event.get('cost', float('nan')):.6g}{rms} ({event.get('evaluations')} evaluations)"
+        elif stage == "synth":
+            what = event.get("what")
+            msg = f"[synth] {what}" + (f" {event['frequency_Hz']:g} Hz: RMS {event['rms_um']:.4g} um" if what == "sine" else "")
+        else:
+            msg = str(event)
+        print(msg, file=stream, flush=True)
+
+    return show
+
+
+def cmd_synth(args) -> int:
+    """``dea-ros synth``: write a synthetic experiment set."""
+    from ..model.parameters import MembraneParameters, ParameterError, load_parameters
+    from .synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
+
+    try:
+        if args.params:
+            params = MembraneParameters.from_yaml(args.params)
+        else:
+            params = load_parameters(args.membrane)
+        freqs = DEFAULT_SINE_FREQUENCIES_HZ
+        if args.frequencies:
+            freqs = tuple(float(x) for x in args.frequencies.split(","))
+        progress = None if args.quiet else _progress_printer(sys.stderr)
+        t0 = time.perf_counter()
+        exp = synthesize(params, float(args.noise), args.out, seed=int(args.seed), sine_frequencies_Hz=freqs,
+                         progress=progress)
+    except (ParameterError, ValueError) as exc:
+        print(f"dea-ros synth: error: {exc}", file=sys.stderr)
+        return 2
+    if not args.quiet:
+        print(f"wrote {args.out}/manifest.yaml ({exp.summary()}) in {time.perf_counter() - t0:.1f} s",
+              file=sys.stderr)
+    return 0
+
+
+def cmd_identify(args) -> int:
+    """``dea-ros identify``: fit all parameters of an experiment folder, write params and report."""
+    from ..model.parameters import ParameterError
+    from .experiments import ExperimentError, load_experiment_set
+    from .pipeline import identify
+    from .report import write_report
+
+    stream = sys.stderr
+    progress = None if args.quiet else _progress_printer(stream)
+    t0 = time.perf_counter()
+    fit_freqs = None
+    if args.fit_frequencies:
+        fit_freqs = "all" if args.fit_frequencies == "all" else [float(x) for x in args.fit_frequencies.split(",")]
+    data_path = Path(args.data)
+    if not (data_path / "manifest.yaml").is_file() and not data_path.name.endswith((".yaml", ".yml")):
+        bag_rc = _identify_bag_if_bag(args, data_path, progress, fit_freqs, t0)
+        if bag_rc is not None:
+            return bag_rc
+    try:
+        experiments = load_experiment_set(args.data)
+        t_load = time.perf_counter() - t0
+        if not args.quiet:
+            print(f"[data] {experiments.summary()} ({t_load:.2f} s)", file=stream, flush=True)
+        result = identify(experiments, progress=progress, **_identify_options(args, fit_freqs))
+        result.timings_s = {"load": t_load, **result.timings_s}
+        paths = write_report(result, args.out, plots=not args.no_plots)
+    except (ExperimentError, ParameterError) as exc:
+        print(f"dea-ros identify: error: {exc}", file=sys.stderr)
+        return 2
+    except (RuntimeError, ArithmeticError, ValueError) as exc:
+        print(f"dea-ros identify: the fit failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    total = time.perf_counter() - t0
+    if args.json:
+        data = result.to_dict()
+        data["timings_s"]["report"] = paths["report_s"]
+        data["timings_s"]["total"] = total
+        data["outputs"] = {k: str(v) for k, v in paths.items() if k != "report_s"}
+        print(json.dumps(data, indent=2))
+    if not args.quiet:
+        for w in result.warnings:
+            print(f"warning: {w}", file=stream)
+        p = result.parameters
+        print(f"[done] eps_r = {p.relative_permittivity:.4g}, k1 = {p.k1_Pa:.4g} Pa, eta1 = {p.eta1_Pa_s:.4g} Pa s, "
+              f"eta2 = {p.eta2_Pa_s:.4g} Pa s; wrote {Path(args.out) / 'params.yaml'} and report.md "
+              f"in {total:.2f} s", file=stream)
+    return 0
+
+
+def _identify_options(args, fit_freqs) -> dict:
+    return dict(static_method=args.static_method, frequency_method=args.frequency_method,
+                dynamic_method=args.dynamic_method, fit_frequencies_Hz=fit_freqs, n_harmonics=args.harmonics,
+                weights=args.weights, fit_curvature={"auto": "auto", "yes": True, "no": False}[args.fit_curvature])
+
+
+def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | None:
+    """``dea-ros identify BAG``: a rosbag2 MCAP recording instead of an experiment folder
+    (via :mod:`dea_ros.identify.from_bag`). None when ``path`` is not a bag."""
+    try:
+        from .from_bag import identify_bag, is_bag
+    except ImportError:  # the bag layer (mcap) is not installed: treat as an experiment folder
+        return None
+    if not is_bag(path):
+        return None
+    from ..model.parameters import ParameterError
+    from .experiments import ExperimentError
+
+    say = None if args.quiet else (lambda msg: print(f"[bag] {msg}", file=sys.stderr, flush=True))
+    try:
+        summary = identify_bag(path, args.out, membrane=args.membrane, progress=say, plots=not args.no_plots,
+                               **_identify_options(args, fit_freqs))
+    except (ExperimentError, ParameterError) as exc:
+        print(f"dea-ros identify: error: {exc}", file=sys.stderr)
+        return 2
+    except (RuntimeError, ArithmeticError, ValueError, OSError) as exc:
+        print(f"dea-ros identify: the fit failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+    summary.setdefault("timings_s", {})["total"] = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps(summary, indent=2, default=str))
+    if not args.quiet:
+        for w in summary.get("warnings", []):
+            print(f"warning: {w}", file=sys.stderr)
+        print(f"[done] wrote {summary.get('params_file')} and {summary.get('report_file')}", file=sys.stderr)
+    return 0
+
+
+def register(subparsers) -> dict:
+    """Add the ``synth`` and ``identify`` subcommands to ``subparsers`` (from ``add_subparsers()``).
+
+    Each parser gets ``func`` = its handler; call ``args.func(args)`` for the exit code.
+    """
+    synth = subparsers.add_parser(
+        "synth", help="write a synthetic experiment set (static, step, sines) with laser noise",
+        description="Simulate the paper's protocol for a parameter set and write an experiment folder "
+                    "(manifest.yaml + CSV, SI units) with Gaussian laser noise; truth.yaml holds the parameters.")
+    src = synth.add_mutually_exclusive_group(required=True)
+    src.add_argument("--membrane", help="preset membrane name (LP1, A1, A2)")
+    src.add_argument("--params", help="parameters YAML file")
+    synth.add_argument("--noise", required=True, type=float, metavar="SIGMA_M",
+                       help="laser noise standard deviation in metres (1 um -> 1e-6)")
+    synth.add_argument("--out", required=True, help="output folder")
+    synth.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    synth.add_argument("--frequencies", default=None,
+                       help="comma-separated sine frequencies in Hz (default 0.2-40 Hz, 26 values)")
+    synth.add_argument("--quiet", action="store_true", help="no progress output")
+    synth.set_defaults(func=cmd_synth)
+
+    ident = subparsers.add_parser(
+        "identify", help="fit the model parameters to an experiment folder and write a report",
+        description="Static fit (eqs. 19-20), then dynamic fit (eqs. 22-24) accelerated by harmonic balance; "
+                    "writes OUT/params.yaml, OUT/report.md, figures and result.json.")
+    ident.add_argument("data", help="experiment folder with manifest.yaml (or a rosbag2 MCAP bag recorded "
+                                    "by identifier_node, via dea_ros.identify.from_bag)")
+    ident.add_argument("--membrane", default=None,
+                       help="bags only: preset name or parameters YAML for the geometry (default: the bag's)")
+    ident.add_argument("--out", required=True, help="output folder for params.yaml and the report")
+    ident.add_argument("--json", action="store_true", help="print parameters, metrics and timings as JSON")
+    ident.add_argument("--quiet", action="store_true", help="no progress output or warnings on stderr")
+    ident.add_argument("--static-method", choices=("lsq", "paper"), default="lsq",
+                       help="lsq: bounded least squares on identifiable combinations (default); "
+                            "paper: Nelder-Mead on eq. 19")
+    ident.add_argument("--frequency-method", choices=("hbm", "integration"), default="hbm",
+                       help="frequency response in the dynamic fit: harmonic balance (default) or forward "
+                            "integration to steady state (slow; for comparison)")
+    ident.add_argument("--dynamic-method", choices=("lsq", "paper"), default="lsq",
+                       help="lsq: least squares with exact sensitivities (default); paper: Nelder-Mead")
+    ident.add_argument("--harmonics", type=int, default=8, help="harmonic-balance harmonics (default 8)")
+    ident.add_argument("--fit-frequencies", default=None,
+                       help="comma-separated Hz, or 'all' (default: the paper's 0.2, 8.3, 11.2, 40 Hz in the data)")
+    ident.add_argument("--weights", choices=("paper", "noise"), default="paper",
+                       help="paper: eq. 22 with w_step = 6.6e6, w_hbm = 0.1e6 (default); noise: 1/sigma^2 "
+                            "(laser noise, d_rms_std_m column), also identifies sigma_h''(1)")
+    ident.add_argument("--fit-curvature", choices=("auto", "yes", "no"), default="auto",
+                       help="identify sigma_h''(1) in the dynamic fit (auto: with --weights noise)")
+    ident.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    ident.set_defaults(func=cmd_identify)
+    return {"synth": synth, "identify": ident}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m dea_ros.identify.commands",
+                                     description="dea_ros identification commands")
+    sub = parser.add_subparsers(dest="command", required=True)
+    register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,895 @@
+"""Experiments as data: static points, step responses and sine responses, with a hand-writable on-disk format.
+
+On-disk format (``dea_ros.experiments/1``)
+=========================================
+One folder per data set::
+
+    my_membrane/
+      manifest.yaml
+      static.csv
+      step_2200V.csv
+      sine_rms.csv
+      sine_2Hz.csv          (optional sampled time series)
+
+``manifest.yaml`` (every quantity in SI units; the ``units`` block is checked)::
+
+    format: dea_ros.experiments/1
+    membrane: A1                 # name given to the fitted parameters
+    parameters: A1               # optional: preset name or a parameters YAML (relative to
+                                 #   this folder): geometry, constants, Ogden prior
+    geometry:                    # required when 'parameters' is absent; overrides it otherwise
+      prestretch: 1.36           #   lambda_p (Table I)
+      thickness_m: 2.7e-05       #   z0
+      plate_radius_m: 0.0045     #   r
+      electrode_width_m: 0.017   #   l0
+    mass_kg: 0.003               # biasing mass of the step and sine experiments
+    sensor_noise_m: 1.0e-06      # optional: laser noise sigma (otherwise estimated)
+    units: {time: s, voltage: V, displacement: m, mass: kg, frequency: Hz}
+    experiments:
+      - kind: static             # columns mass_kg, voltage_V, displacement_m (one row per point)
+        file: static.csv
+      - kind: step               # columns time_s, voltage_V, displacement_m (sampled)
+        file: step_2200V.csv
+        voltage_hold: zoh        # optional: zoh (DAQ output, default) or linear
+        mass_kg: 0.003           # optional: overrides the top-level mass for this experiment
+      - kind: sine               # columns frequency_Hz, amplitude_V, d_rms_m[, d0_m, d_rms_std_m]
+        file: sine_rms.csv       #   d_rms by eq. 21 around the rest position d0; d_rms_std_m its
+                                 #   standard uncertainty (needed for weights="noise")
+        series:                  # optional sampled records: time_s, voltage_V, displacement_m
+          - {frequency_Hz: 2.0, file: sine_2Hz.csv}
+
+CSV files: comma separated, ``#`` starts a comment line, the first other line
+is the header. Every column name ends with its unit (``_s``, ``_V``, ``_m``,
+``_kg``, ``_Hz``); columns not listed above are ignored. Displacement d is the
+downward deflection of the mass from the flat membrane (d = 0 at 0 g, 0 V),
+as in the paper (Fig. 1).
+
+Loading validates units (header suffixes, values that look like mm or kV),
+lengths, NaN/inf, strictly increasing time and the minimum amount of data;
+every :class:`ExperimentError` names the file, the column and, where it
+applies, the row (the 1-based line number in the file).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from ..model.parameters import PRESET_NAMES, MembraneParameters, ParameterError, load_parameters
+
+__all__ = [
+    "FORMAT",
+    "KINDS",
+    "GEOMETRY_FIELDS",
+    "ExperimentError",
+    "StaticData",
+    "StepData",
+    "SineSeries",
+    "SineData",
+    "ExperimentSet",
+    "load_experiment_set",
+    "write_experiment_set",
+    "read_csv_columns",
+    "write_csv_columns",
+]
+
+FORMAT = "dea_ros.experiments/1"
+KINDS = ("static", "step", "sine")
+GEOMETRY_FIELDS = ("prestretch", "thickness_m", "plate_radius_m", "electrode_width_m")
+_SI_UNITS = {"time": "s", "voltage": "V", "displacement": "m", "mass": "kg", "frequency": "Hz"}
+
+#: Columns of each file type: name -> (quantity, plausibility check name).
+STATIC_COLUMNS = ("mass_kg", "voltage_V", "displacement_m")
+STEP_COLUMNS = ("time_s", "voltage_V", "displacement_m")
+SINE_COLUMNS = ("frequency_Hz", "amplitude_V", "d_rms_m")
+SINE_OPTIONAL = ("d0_m", "d_rms_std_m")
+
+# Other spellings people use for a unit, with the conversion to SI.
+_WRONG_UNITS = {
+    "m": {"mm": "divide by 1000", "um": "divide by 1e6", "µm": "divide by 1e6",
+          "micron": "divide by 1e6", "cm": "divide by 100", "nm": "divide by 1e9"},
+    "V": {"kV": "multiply by 1000", "kv": "multiply by 1000", "mV": "divide by 1000", "v": "write V"},
+    "s": {"ms": "divide by 1000", "us": "divide by 1e6", "min": "multiply by 60"},
+    "kg": {"g": "divide by 1000", "mg": "divide by 1e6"},
+    "Hz": {"kHz": "multiply by 1000", "hz": "write Hz", "rad_s": "divide by 2 pi"},
+}
+
+
+class ExperimentError(ValueError):
+    """Invalid experiment data; the message names the file, column and row, and the fix."""
+
+
+# --------------------------------------------------------------------------- CSV I/O
+def _column_error(source: str, name: str, expected: str) -> ExperimentError | None:
+    """Diagnose a header that names the right quantity with a wrong or missing unit."""
+    base, _, unit = expected.rpartition("_")
+    if name == base:
+        return ExperimentError(
+            f"{source}: column '{name}' has no unit suffix; name it '{expected}' "
+            f"(values in {unit})"
+        )
+    if name.startswith(base + "_"):
+        given = name[len(base) + 1:]
+        hint = _WRONG_UNITS.get(unit, {}).get(given)
+        fix = f"convert the values ({hint}) and " if hint else "convert the values to SI and "
+        return ExperimentError(
+            f"{source}: column '{name}' is in '{given}', the format expects SI units: "
+            f"{fix}rename the column to '{expected}'"
+        )
+    return None
+
+
+def read_csv_columns(
+    path: str | Path,
+    required: Sequence[str],
+    optional: Sequence[str] = (),
+) -> dict[str, np.ndarray]:
+    """Read the named numeric columns of a CSV file with a unit-suffixed header.
+
+    Raises :class:`ExperimentError` naming the file, column and line for a
+    missing or wrongly-united column, a row with the wrong number of fields,
+    and values that are not finite numbers.
+    """
+    path = Path(path)
+    source = str(path)
+    if not path.is_file():
+        raise ExperimentError(f"{source}: no such file (listed in the manifest)")
+    lines = path.read_text().splitlines()
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[tuple[int, list[str]]] = []
+    for number, line in enumerate(lines, start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        cells = [c.strip() for c in text.split(",")]
+        if header is None:
+            header, header_line = cells, number
+        else:
+            rows.append((number, cells))
+    if header is None:
+        raise ExperimentError(f"{source}: empty file; expected a header row {','.join(required)}")
+    index = {name: k for k, name in enumerate(header)}
+    if len(index) != len(header):
+        dupes = sorted({h for h in header if header.count(h) > 1})
+        raise ExperimentError(f"{source} line {header_line}: duplicate column(s) {dupes}")
+    columns: dict[str, np.ndarray] = {}
+    for name in list(required) + list(optional):
+        if name not in index:
+            if name in optional:
+                continue
+            for given in header:
+                err = _column_error(source, given, name)
+                if err is not None:
+                    raise err
+            raise ExperimentError(
+                f"{source} line {header_line}: missing column '{name}'; the header must name "
+                f"{', '.join(required)} (SI units in the suffix), got {', '.join(header)}"
+            )
+    if not rows:
+        raise ExperimentError(f"{source}: no data rows after the header (line {header_line})")
+    wanted = [n for n in list(required) + list(optional) if n in index]
+    values = {n: np.empty(len(rows)) for n in wanted}
+    for r, (number, cells) in enumerate(rows):
+        if len(cells) != len(header):
+            raise ExperimentError(
+                f"{source} line {number}: {len(cells)} field(s), the header has {len(header)}; "
+                "every row needs one value per column (inconsistent lengths)"
+            )
+        for n in wanted:
+            text = cells[index[n]]
+            try:
+                v = float(text)
+            except ValueError:
+                raise ExperimentError(
+                    f"{source} line {number}, column '{n}': {text!r} is not a number"
+                ) from None
+            if not math.isfinite(v):
+                raise ExperimentError(
+                    f"{source} line {number}, column '{n}': {text} is not finite (NaN/inf); "
+                    "remove the row or repair the value"
+                )
+            values[n][r] = v
+    columns.update(values)
+    columns["_lines"] = np.array([number for number, _ in rows])
+    return columns
+
+
+def write_csv_columns(path: str | Path, columns: Mapping[str, Iterable[float]],
+                      comment: str | None = None) -> None:
+    """Write equal-length numeric columns with a header (full double precision)."""
+    names = list(columns)
+    data = [np.asarray(columns[n], dtype=float).reshape(-1) for n in names]
+    n = {d.size for d in data}
+    if len(n) != 1:
+        raise ExperimentError(f"{path}: columns have different lengths {[d.size for d in data]}")
+    out = []
+    if comment:
+        out += [f"# {line}" for line in comment.splitlines()]
+    out.append(",".join(names))
+    table = np.column_stack(data)
+    out += [",".join(repr(float(v)) for v in row) for row in table]
+    Path(path).write_text("\n".join(out) + "\n")
+
+
+# --------------------------------------------------------------------------- checks
+def _line_of(lines: np.ndarray | None, k: int) -> str:
+    return f"line {int(lines[k])}" if lines is not None and k < lines.size else f"row {k + 1}"
+
+
+def _as_array(value, name: str, source: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ExperimentError(f"{source}, column '{name}': not numeric") from None
+    bad = np.nonzero(~np.isfinite(arr))[0]
+    if bad.size:
+        raise ExperimentError(
+            f"{source}, column '{name}': value {arr[bad[0]]} at row {bad[0] + 1} is not finite "
+            "(NaN/inf); remove the row or repair the value"
+        )
+    return arr
+
+
+def _check_lengths(source: str, **arrays: np.ndarray) -> int:
+    sizes = {k: v.size for k, v in arrays.items()}
+    if len(set(sizes.values())) != 1:
+        raise ExperimentError(
+            f"{source}: columns have inconsistent lengths {sizes}; every column needs one value per sample"
+        )
+    return next(iter(sizes.values()))
+
+
+def _check_displacement(d: np.ndarray, name: str, source: str, lines=None) -> None:
+    k = int(np.argmax(np.abs(d)))
+    if abs(d[k]) > 0.02:
+        raise ExperimentError(
+            f"{source}, column '{name}', {_line_of(lines, k)}: {d[k]:g} m is beyond any DEA "
+            "deflection (the membranes move < 2 mm); values look like millimetres or "
+            "micrometres: convert to metres (mm / 1000)"
+        )
+
+
+def _check_voltage(u: np.ndarray, name: str, source: str, lines=None) -> None:
+    peak = float(np.max(np.abs(u))) if u.size else 0.0
+    if 0.0 < peak < 50.0:
+        raise ExperimentError(
+            f"{source}, column '{name}': the largest voltage is {peak:g} V; DEAs are driven "
+            "with kilovolts, so the values look like kV: convert to volts (2.2 kV -> 2200)"
+        )
+    k = int(np.argmax(np.abs(u)))
+    if peak > 1e5:
+        raise ExperimentError(
+            f"{source}, column '{name}', {_line_of(lines, k)}: {u[k]:g} V is beyond any DEA amplifier; "
+            "volts expected (2.2 kV -> 2200)"
+        )
+
+
+def _check_mass(m: np.ndarray, name: str, source: str, lines=None) -> None:
+    if np.any(m < 0):
+        k = int(np.nonzero(m < 0)[0][0])
+        raise ExperimentError(f"{source}, column '{name}', {_line_of(lines, k)}: negative mass {m[k]:g} kg")
+    k = int(np.argmax(m)) if m.size else 0
+    if m.size and m[k] > 0.5:
+        raise ExperimentError(
+            f"{source}, column '{name}', {_line_of(lines, k)}: {m[k]:g} kg is far more than a "
+            "membrane carries; values look like grams: convert to kg (3 g -> 0.003)"
+        )
+
+
+def _check_time(t: np.ndarray, name: str, source: str, lines=None) -> None:
+    dt = np.diff(t)
+    bad = np.nonzero(dt <= 0)[0]
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise ExperimentError(
+            f"{source}, column '{name}', {_line_of(lines, k)}: time is not strictly increasing "
+            f"({t[k]:.9g} s after {t[k - 1]:.9g} s); sort the samples and drop duplicates"
+        )
+    if t[-1] - t[0] > 3600.0:
+        raise ExperimentError(
+            f"{source}, column '{name}': the record spans {t[-1] - t[0]:g} s; the values look "
+            "like milliseconds: convert to seconds (ms / 1000)"
+        )
+    if dt.size and float(np.median(dt)) > 0.02:
+        raise ExperimentError(
+            f"{source}, column '{name}': median sample interval {float(np.median(dt)):g} s is too "
+            "coarse for the 10-20 Hz dynamics (laser at 1 kHz -> 0.001 s); if the values are in "
+            "milliseconds convert them to seconds"
+        )
+
+
+# --------------------------------------------------------------------------- data classes
+@dataclass(frozen=True)
+class StaticData:
+    """Static points (eq. 20): the rest displacement for a mass and a constant voltage."""
+
+    mass_kg: np.ndarray
+    voltage_V: np.ndarray
+    displacement_m: np.ndarray
+    source: str = "static data"
+
+    def __post_init__(self):
+        src = self.source
+        m = _as_array(self.mass_kg, "mass_kg", src)
+        u = _as_array(self.voltage_V, "voltage_V", src)
+        d = _as_array(self.displacement_m, "displacement_m", src)
+        n = _check_lengths(src, mass_kg=m, voltage_V=u, displacement_m=d)
+        if n < 1:
+            raise ExperimentError(f"{src}: no static points")
+        _check_mass(m, "mass_kg", src)
+        _check_voltage(u, "voltage_V", src)
+        _check_displacement(d, "displacement_m", src)
+        for name, arr in (("mass_kg", m), ("voltage_V", u), ("displacement_m", d)):
+            object.__setattr__(self, name, arr)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.mass_kg.size)
+
+
+@dataclass(frozen=True)
+class StepData:
+    """A sampled voltage step response (eq. 23): time (s), voltage (V), displacement (m)."""
+
+    time_s: np.ndarray
+    voltage_V: np.ndarray
+    displacement_m: np.ndarray
+    mass_kg: float
+    voltage_hold: str = "zoh"
+    source: str = "step data"
+
+    def __post_init__(self):
+        src = self.source
+        t = _as_array(self.time_s, "time_s", src)
+        u = _as_array(self.voltage_V, "voltage_V", src)
+        d = _as_array(self.displacement_m, "displacement_m", src)
+        n = _check_lengths(src, time_s=t, voltage_V=u, displacement_m=d)
+        if n < 20:
+            raise ExperimentError(
+                f"{src}: {n} samples are too few for a step response (need >= 20; the rig samples at 1 kHz)"
+            )
+        _check_time(t, "time_s", src)
+        _check_voltage(u, "voltage_V", src)
+        _check_displacement(d, "displacement_m", src)
+        if self.voltage_hold not in ("zoh", "linear"):
+            raise ExperimentError(f"{src}: voltage_hold must be 'zoh' or 'linear', got {self.voltage_hold!r}")
+        if float(np.ptp(u)) < 50.0:
+            raise ExperimentError(
+                f"{src}, column 'voltage_V': the voltage never changes (range {float(np.ptp(u)):g} V); "
+                "a step experiment needs a voltage step"
+            )
+        if not (isinstance(self.mass_kg, (int, float)) and 0.0 < float(self.mass_kg) <= 0.5):
+            raise ExperimentError(f"{src}: mass_kg must be in (0, 0.5] kg, got {self.mass_kg!r}")
+        for name, arr in (("time_s", t), ("voltage_V", u), ("displacement_m", d)):
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "mass_kg", float(self.mass_kg))
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time_s.size)
+
+    @property
+    def step_index(self) -> int:
+        """Index of the first sample at the new voltage (the largest voltage jump)."""
+        return int(np.argmax(np.abs(np.diff(self.voltage_V)))) + 1
+
+    @property
+    def step_time_s(self) -> float:
+        return float(self.time_s[self.step_index])
+
+    @property
+    def initial_V(self) -> float:
+        return float(self.voltage_V[0])
+
+    @property
+    def final_V(self) -> float:
+        return float(self.voltage_V[-1])
+
+    @property
+    def sample_period_s(self) -> float:
+        return float(np.median(np.diff(self.time_s)))
+
+
+@dataclass(frozen=True)
+class SineSeries:
+    """A sampled record under a sine voltage (optional companion of :class:`SineData`)."""
+
+    frequency_Hz: float
+    time_s: np.ndarray
+    voltage_V: np.ndarray
+    displacement_m: np.ndarray
+    source: str = "sine series"
+
+    def __post_init__(self):
+        src = self.source
+        t = _as_array(self.time_s, "time_s", src)
+        u = _as_array(self.voltage_V, "voltage_V", src)
+        d = _as_array(self.displacement_m, "displacement_m", src)
+        n = _check_lengths(src, time_s=t, voltage_V=u, displacement_m=d)
+        if n < 20:
+            raise ExperimentError(f"{src}: {n} samples are too few for a sine record (need >= 20)")
+        _check_time(t, "time_s", src)
+        _check_voltage(u, "voltage_V", src)
+        _check_displacement(d, "displacement_m", src)
+        f = float(self.frequency_Hz)
+        if not (math.isfinite(f) and f > 0):
+            raise ExperimentError(f"{src}: frequency_Hz must be > 0, got {self.frequency_Hz!r}")
+        for name, arr in (("time_s", t), ("voltage_V", u), ("displacement_m", d)):
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "frequency_Hz", f)
+
+    def whole_periods(self) -> np.ndarray:
+        """Boolean mask of the samples within the largest whole number of periods."""
+        t = self.time_s - self.time_s[0]
+        dt = float(np.median(np.diff(self.time_s)))
+        n_periods = math.floor((t[-1] + dt) * self.frequency_Hz + 1e-9)
+        if n_periods < 1:
+            raise ExperimentError(f"{self.source}: shorter than one period at {self.frequency_Hz:g} Hz")
+        return t < n_periods / self.frequency_Hz - 1e-12
+
+    def displacement_rms(self, d0_m: float) -> float:
+        """RMS of d - d0 over whole periods (eq. 21)."""
+        d = self.displacement_m[self.whole_periods()]
+        return float(np.sqrt(np.mean((d - d0_m) ** 2)))
+
+
+@dataclass(frozen=True)
+class SineData:
+    """Frequency response (eq. 21): RMS displacement around the rest position d0 per frequency."""
+
+    frequency_Hz: np.ndarray
+    amplitude_V: np.ndarray
+    d_rms_m: np.ndarray
+    mass_kg: float
+    d0_m: np.ndarray | None = None
+    series: tuple = ()
+    source: str = "sine data"
+    d_rms_std_m: np.ndarray | None = None
+
+    def __post_init__(self):
+        src = self.source
+        f = _as_array(self.frequency_Hz, "frequency_Hz", src)
+        a = _as_array(self.amplitude_V, "amplitude_V", src)
+        r = _as_array(self.d_rms_m, "d_rms_m", src)
+        arrays = {"frequency_Hz": f, "amplitude_V": a, "d_rms_m": r}
+        if self.d0_m is not None:
+            arrays["d0_m"] = _as_array(self.d0_m, "d0_m", src)
+        if self.d_rms_std_m is not None:
+            arrays["d_rms_std_m"] = _as_array(self.d_rms_std_m, "d_rms_std_m", src)
+        n = _check_lengths(src, **arrays)
+        if n < 1:
+            raise ExperimentError(f"{src}: no frequencies")
+        if np.any(f <= 0):
+            k = int(np.nonzero(f <= 0)[0][0])
+            raise ExperimentError(f"{src}, column 'frequency_Hz', row {k + 1}: must be > 0, got {f[k]:g}")
+        if np.any(a <= 0):
+            k = int(np.nonzero(a <= 0)[0][0])
+            raise ExperimentError(f"{src}, column 'amplitude_V', row {k + 1}: must be > 0, got {a[k]:g}")
+        if np.any(r < 0):
+            k = int(np.nonzero(r < 0)[0][0])
+            raise ExperimentError(f"{src}, column 'd_rms_m', row {k + 1}: an RMS is >= 0, got {r[k]:g}")
+        _check_voltage(a, "amplitude_V", src)
+        _check_displacement(r, "d_rms_m", src)
+        if "d0_m" in arrays:
+            _check_displacement(arrays["d0_m"], "d0_m", src)
+        if "d_rms_std_m" in arrays:
+            std = arrays["d_rms_std_m"]
+            if np.any(std <= 0):
+                k = int(np.nonzero(std <= 0)[0][0])
+                raise ExperimentError(f"{src}, column 'd_rms_std_m', row {k + 1}: a standard uncertainty is > 0, "
+                                      f"got {std[k]:g}")
+            _check_displacement(std, "d_rms_std_m", src)
+        dup = np.nonzero(np.diff(np.sort(f)) <= 1e-9 * np.max(f))[0]
+        if dup.size:
+            raise ExperimentError(f"{src}, column 'frequency_Hz': frequency {np.sort(f)[dup[0]]:g} Hz appears twice")
+        if not (isinstance(self.mass_kg, (int, float)) and 0.0 < float(self.mass_kg) <= 0.5):
+            raise ExperimentError(f"{src}: mass_kg must be in (0, 0.5] kg, got {self.mass_kg!r}")
+        for name, arr in arrays.items():
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "mass_kg", float(self.mass_kg))
+        object.__setattr__(self, "series", tuple(self.series))
+
+    @property
+    def n_frequencies(self) -> int:
+        return int(self.frequency_Hz.size)
+
+
+@dataclass
+class ExperimentSet:
+    """Everything measured on one membrane, plus its geometry (Table I)."""
+
+    membrane: str
+    geometry: dict
+    mass_kg: float
+    static: list = field(default_factory=list)
+    steps: list = field(default_factory=list)
+    sines: list = field(default_factory=list)
+    base_parameters: MembraneParameters | None = None
+    base_reference: str | None = None
+    sensor_noise_m: float | None = None
+    folder: Path | None = None
+    notes: str = ""
+
+    def __post_init__(self):
+        if not isinstance(self.membrane, str) or not self.membrane.strip():
+            raise ExperimentError("manifest field 'membrane': must be a non-empty name")
+        missing = [k for k in GEOMETRY_FIELDS if k not in self.geometry]
+        if missing:
+            raise ExperimentError(
+                f"manifest: geometry field(s) {missing} missing; give them under 'geometry:' "
+                f"or reference a parameters file / preset {PRESET_NAMES} with 'parameters:'"
+            )
+        if not (isinstance(self.mass_kg, (int, float)) and 0.0 < float(self.mass_kg) <= 0.5):
+            raise ExperimentError(
+                f"manifest field 'mass_kg': must be in (0, 0.5] kg, got {self.mass_kg!r} (3 g -> 0.003)"
+            )
+        if self.sensor_noise_m is not None and not (0.0 < float(self.sensor_noise_m) < 1e-3):
+            raise ExperimentError(
+                f"manifest field 'sensor_noise_m': must be in (0, 1e-3) m, got {self.sensor_noise_m!r}"
+            )
+        if not (self.static or self.steps or self.sines):
+            raise ExperimentError("manifest field 'experiments': no experiments listed")
+        try:
+            self.template_parameters()
+        except ParameterError as exc:
+            raise ExperimentError(f"manifest geometry: {exc}") from None
+
+    def template_parameters(self) -> MembraneParameters:
+        """Parameters with the manifest's geometry and constants; fitted fields are placeholders
+        (the base file's values when one is referenced)."""
+        if self.base_parameters is not None:
+            base = self.base_parameters
+        else:
+            base = MembraneParameters(
+                name=self.membrane, prestretch=1.0, thickness_m=1e-5, plate_radius_m=1e-3,
+                electrode_width_m=1e-2, mass_kg=self.mass_kg, relative_permittivity=3.0,
+                k1_Pa=1e7, eta1_Pa_s=1e7, eta2_Pa_s=1e4, beta_Pa=(1e5, 0.0, 0.0),
+                gamma_Pa=(0.0, 0.0, 0.0),
+            )
+        return base.replace(name=self.membrane, mass_kg=float(self.mass_kg),
+                            **{k: float(self.geometry[k]) for k in GEOMETRY_FIELDS})
+
+    def all_static(self) -> StaticData | None:
+        """All static points merged into one table (None when there are none)."""
+        if not self.static:
+            return None
+        return StaticData(
+            np.concatenate([s.mass_kg for s in self.static]),
+            np.concatenate([s.voltage_V for s in self.static]),
+            np.concatenate([s.displacement_m for s in self.static]),
+            source=", ".join(s.source for s in self.static),
+        )
+
+    def summary(self) -> str:
+        parts = [f"membrane {self.membrane}"]
+        if self.static:
+            parts.append(f"{sum(s.n_points for s in self.static)} static points")
+        if self.steps:
+            parts.append(f"{len(self.steps)} step response(s)")
+        if self.sines:
+            parts.append(f"{sum(s.n_frequencies for s in self.sines)} sine frequencies")
+        return ", ".join(parts)
+
+
+# --------------------------------------------------------------------------- manifest
+def _manifest_error(path: Path, msg: str) -> ExperimentError:
+    return ExperimentError(f"{path}: {msg}")
+
+
+def _resolve_parameters(folder: Path, ref: str, manifest: Path) -> MembraneParameters:
+    candidate = folder / ref
+    try:
+        if candidate.is_file():
+            return MembraneParameters.from_yaml(candidate)
+        if ref.strip().upper() in PRESET_NAMES:
+            return load_parameters(ref)
+    except ParameterError as exc:
+        raise _manifest_error(manifest, f"field 'parameters': {exc}") from None
+    raise _manifest_error(
+        manifest,
+        f"field 'parameters': {ref!r} is neither a file in {folder} nor a preset {PRESET_NAMES}",
+    )
+
+
+def load_experiment_set(folder: str | Path) -> ExperimentSet:
+    """Load and validate an experiment folder (see the module docstring for the format)."""
+    folder = Path(folder)
+    manifest = folder / "manifest.yaml"
+    if folder.is_file() and folder.name.endswith((".yaml", ".yml")):
+        manifest, folder = folder, folder.parent
+    if not manifest.is_file():
+        raise ExperimentError(
+            f"{folder}: no manifest.yaml; an experiment folder holds manifest.yaml and CSV files "
+            "(see dea_ros.identify.experiments)"
+        )
+    try:
+        data = yaml.safe_load(manifest.read_text())
+    except yaml.YAMLError as exc:
+        raise _manifest_error(manifest, f"not valid YAML ({exc})") from None
+    if not isinstance(data, Mapping):
+        raise _manifest_error(manifest, "expected a mapping (format, membrane, mass_kg, experiments, ...)")
+    known = {"format", "membrane", "parameters", "geometry", "mass_kg", "sensor_noise_m", "units",
+             "experiments", "notes"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise _manifest_error(manifest, f"unknown field(s) {unknown}; allowed: {sorted(known)}")
+    fmt = data.get("format", FORMAT)
+    if fmt != FORMAT:
+        raise _manifest_error(manifest, f"field 'format': {fmt!r} is not supported (expected {FORMAT!r})")
+    units = data.get("units", {}) or {}
+    if not isinstance(units, Mapping):
+        raise _manifest_error(manifest, "field 'units': expected a mapping such as {time: s, voltage: V}")
+    for quantity, unit in units.items():
+        if quantity not in _SI_UNITS:
+            raise _manifest_error(manifest, f"field 'units.{quantity}': unknown quantity; known {sorted(_SI_UNITS)}")
+        if str(unit) != _SI_UNITS[quantity]:
+            raise _manifest_error(
+                manifest,
+                f"field 'units.{quantity}': '{unit}' is not supported; the format is SI "
+                f"({quantity} in {_SI_UNITS[quantity]}): convert the CSV values and state "
+                f"'{_SI_UNITS[quantity]}'",
+            )
+    membrane = data.get("membrane")
+    if not isinstance(membrane, str) or not membrane.strip():
+        raise _manifest_error(manifest, "field 'membrane': a name is required (e.g. A1)")
+    base = None
+    ref = data.get("parameters")
+    if ref is not None:
+        base = _resolve_parameters(folder, str(ref), manifest)
+    geometry: dict[str, Any] = {}
+    if base is not None:
+        geometry.update({k: getattr(base, k) for k in GEOMETRY_FIELDS})
+    extra_geometry = data.get("geometry") or {}
+    if not isinstance(extra_geometry, Mapping):
+        raise _manifest_error(manifest, "field 'geometry': expected a mapping of " + ", ".join(GEOMETRY_FIELDS))
+    bad = sorted(set(extra_geometry) - set(GEOMETRY_FIELDS))
+    if bad:
+        raise _manifest_error(manifest, f"field 'geometry': unknown key(s) {bad}; allowed {list(GEOMETRY_FIELDS)}")
+    for k, v in extra_geometry.items():
+        try:
+            geometry[k] = float(v)
+        except (TypeError, ValueError):
+            raise _manifest_error(manifest, f"field 'geometry.{k}': must be a number, got {v!r}") from None
+    if "mass_kg" not in data:
+        raise _manifest_error(manifest, "field 'mass_kg': the biasing mass (kg) is required (3 g -> 0.003)")
+    mass = data["mass_kg"]
+    if isinstance(mass, bool) or not isinstance(mass, (int, float)):
+        raise _manifest_error(manifest, f"field 'mass_kg': must be a number in kg, got {mass!r}")
+    noise = data.get("sensor_noise_m")
+    entries = data.get("experiments")
+    if not isinstance(entries, list) or not entries:
+        raise _manifest_error(manifest, "field 'experiments': a non-empty list of {kind, file} is required")
+    static, steps, sines = [], [], []
+    for k, entry in enumerate(entries):
+        where = f"experiments[{k}]"
+        if not isinstance(entry, Mapping) or "kind" not in entry or "file" not in entry:
+            raise _manifest_error(manifest, f"{where}: needs 'kind' ({'/'.join(KINDS)}) and 'file'")
+        kind = entry["kind"]
+        if kind not in KINDS:
+            raise _manifest_error(manifest, f"{where}.kind: {kind!r} is not one of {KINDS}")
+        path = folder / str(entry["file"])
+        exp_mass = entry.get("mass_kg", mass)
+        try:
+            if kind == "static":
+                cols = read_csv_columns(path, STATIC_COLUMNS)
+                lines = cols["_lines"]
+                _check_mass(cols["mass_kg"], "mass_kg", str(path), lines)
+                _check_voltage(cols["voltage_V"], "voltage_V", str(path), lines)
+                _check_displacement(cols["displacement_m"], "displacement_m", str(path), lines)
+                static.append(StaticData(cols["mass_kg"], cols["voltage_V"], cols["displacement_m"], str(path)))
+            elif kind == "step":
+                cols = read_csv_columns(path, STEP_COLUMNS)
+                lines = cols["_lines"]
+                _check_time(cols["time_s"], "time_s", str(path), lines)
+                _check_displacement(cols["displacement_m"], "displacement_m", str(path), lines)
+                steps.append(StepData(cols["time_s"], cols["voltage_V"], cols["displacement_m"],
+                                      mass_kg=exp_mass, voltage_hold=entry.get("voltage_hold", "zoh"),
+                                      source=str(path)))
+            else:
+                cols = read_csv_columns(path, SINE_COLUMNS, SINE_OPTIONAL)
+                series = []
+                for j, item in enumerate(entry.get("series", []) or []):
+                    if not isinstance(item, Mapping) or "file" not in item or "frequency_Hz" not in item:
+                        raise _manifest_error(manifest, f"{where}.series[{j}]: needs 'frequency_Hz' and 'file'")
+                    spath = folder / str(item["file"])
+                    scols = read_csv_columns(spath, STEP_COLUMNS)
+                    _check_time(scols["time_s"], "time_s", str(spath), scols["_lines"])
+                    series.append(SineSeries(float(item["frequency_Hz"]), scols["time_s"], scols["voltage_V"],
+                                             scols["displacement_m"], source=str(spath)))
+                sines.append(SineData(cols["frequency_Hz"], cols["amplitude_V"], cols["d_rms_m"],
+                                      mass_kg=exp_mass, d0_m=cols.get("d0_m"), series=tuple(series),
+                                      source=str(path), d_rms_std_m=cols.get("d_rms_std_m")))
+        except ParameterError as exc:  # pragma: no cover - defensive
+            raise ExperimentError(f"{path}: {exc}") from None
+    return ExperimentSet(
+        membrane=membrane.strip(), geometry=geometry, mass_kg=float(mass), static=static,
+        steps=steps, sines=sines, base_parameters=base,
+        base_reference=None if ref is None else str(ref),
+        sensor_noise_m=None if noise is None else float(noise), folder=folder,
+        notes=str(data.get("notes", "") or ""),
+    )
+
+
+def write_experiment_set(experiments: ExperimentSet, folder: str | Path) -> Path:
+    """Write an experiment set as a folder (manifest.yaml + CSV files); return the manifest path.
+
+    A base parameters object is written next to the manifest as ``base_parameters.yaml``
+    (unless it was referenced by preset name).
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest: dict[str, Any] = {"format": FORMAT, "membrane": experiments.membrane}
+    if experiments.base_parameters is not None:
+        ref = experiments.base_reference
+        if ref is not None and ref.strip().upper() in PRESET_NAMES:
+            manifest["parameters"] = ref.strip().upper()
+        else:
+            experiments.base_parameters.to_yaml(folder / "base_parameters.yaml",
+                                                header="base parameters of the experiment set")
+            manifest["parameters"] = "base_parameters.yaml"
+    manifest["geometry"] = {k: float(experiments.geometry[k]) for k in GEOMETRY_FIELDS}
+    manifest["mass_kg"] = float(experiments.mass_kg)
+    if experiments.sensor_noise_m is not None:
+        manifest["sensor_noise_m"] = float(experiments.sensor_noise_m)
+    manifest["units"] = dict(_SI_UNITS)
+    entries = []
+    for k, s in enumerate(experiments.static):
+        name = "static.csv" if len(experiments.static) == 1 else f"static_{k}.csv"
+        write_csv_columns(folder / name, {"mass_kg": s.mass_kg, "voltage_V": s.voltage_V,
+                                          "displacement_m": s.displacement_m},
+                          comment="static points: rest displacement for a mass and a constant voltage (eq. 20)")
+        entries.append({"kind": "static", "file": name})
+    for k, s in enumerate(experiments.steps):
+        name = f"step_{k}_{abs(s.final_V - s.initial_V):.0f}V.csv"
+        write_csv_columns(folder / name, {"time_s": s.time_s, "voltage_V": s.voltage_V,
+                                          "displacement_m": s.displacement_m},
+                          comment=f"voltage step {s.initial_V:g} V -> {s.final_V:g} V, mass {s.mass_kg:g} kg")
+        entry = {"kind": "step", "file": name, "voltage_hold": s.voltage_hold}
+        if s.mass_kg != experiments.mass_kg:
+            entry["mass_kg"] = s.mass_kg
+        entries.append(entry)
+    for k, s in enumerate(experiments.sines):
+        name = "sine_rms.csv" if len(experiments.sines) == 1 else f"sine_rms_{k}.csv"
+        cols = {"frequency_Hz": s.frequency_Hz, "amplitude_V": s.amplitude_V, "d_rms_m": s.d_rms_m}
+        if s.d0_m is not None:
+            cols["d0_m"] = s.d0_m
+        if s.d_rms_std_m is not None:
+            cols["d_rms_std_m"] = s.d_rms_std_m
+        write_csv_columns(folder / name, cols,
+                          comment="frequency response: RMS of d - d0 over whole periods (eq. 21); "
+                                  "d_rms_std_m: its standard uncertainty (optional)")
+        entry: dict[str, Any] = {"kind": "sine", "file": name}
+        if s.mass_kg != experiments.mass_kg:
+            entry["mass_kg"] = s.mass_kg
+        series = []
+        for j, ser in enumerate(s.series):
+            sname = f"sine_{k}_{j}_{ser.frequency_Hz:g}Hz.csv"
+            write_csv_columns(folder / sname, {"time_s": ser.time_s, "voltage_V": ser.voltage_V,
+                                               "displacement_m": ser.displacement_m},
+                              comment=f"sine record at {ser.frequency_Hz:g} Hz")
+            series.append({"frequency_Hz": float(ser.frequency_Hz), "file": sname})
+        if series:
+            entry["series"] = series
+        entries.append(entry)
+    manifest["experiments"] = entries
+    if experiments.notes:
+        manifest["notes"] = experiments.notes
+    header = (
+        "# dea_ros experiment set (format dea_ros.experiments/1): SI units everywhere.\n"
+        "# See dea_ros/identify/experiments.py for the format. d = downward deflection of the mass.\n"
+    )
+    path = folder / "manifest.yaml"
+    path.write_text(header + yaml.safe_dump(manifest, sort_keys=False))
+    experiments.folder = folder
+    return path
+
+
+# --------------------------------------------------------------------------- data quality
+def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
+    """Laser noise sigma (m) of a sampled record, from its third differences.
+
+    For white noise, the third difference has variance 20 sigma^2; the 10-20 Hz motion
+    sampled at 1 kHz contributes (omega h)^3 ~ 1e-3 of its amplitude, so the estimate is
+    insensitive to the response itself. A robust spread (1.4826 x median absolute deviation)
+    ignores the few samples around the voltage step. None for fewer than ``min_samples`` samples.
+    """
+    d = step.displacement_m
+    if d.size < min_samples:
+        return None
+    d3 = np.diff(d, 3)
+    mad = float(np.median(np.abs(d3 - np.median(d3))))
+    return 1.4826 * mad / math.sqrt(20.0)
+
+
+def rest_warning(step: StepData, noise_m: float | None) -> str | None:
+    """A warning when the record does not start at rest before the step (the model assumes it does).
+
+    The pre-step samples (detrended) should only show laser noise; a spread above 3 sigma
+    (or 0.5 % of the step response) means the membrane was still moving (a previous segment
+    ringing or creeping) and the fit will be biased.
+    """
+    k0 = step.step_index
+    base = step.displacement_m[:k0]
+    if base.size < 10 or noise_m is None:
+        return None
+    t = step.time_s[:k0]
+    trend = np.polyval(np.polyfit(t - t[0], base, 1), t - t[0])
+    spread = float(np.std(base - trend))
+    if spread > 3.0 * noise_m:
+        return (
+            f"{step.source}: the record does not start at rest: before the step the displacement varies by "
+            f"{spread * 1e6:.3g} um RMS (noise {noise_m * 1e6:.3g} um). The model starts from the static "
+            "equilibrium, so the fit is biased: let the membrane settle before the step (several "
+            "eta1/k1 and the ringing) or start the record later"
+        )
+    return None
+
+
+def step_settling_warning(step: StepData, noise_m: float | None) -> str | None:
+    """A warning when the step response is still oscillating or drifting at the end of the record.
+
+    Compares the spread of the last 20 % of the post-step record (at least 0.1 s)
+    with the first window after the step; a response that keeps more than a
+    quarter of its initial oscillation (and more than 3 noise sigmas) has not
+    settled, and a drift over the last window extrapolating to more than 10 %
+    of the step size over the record is flagged too.
+    """
+    t, d = step.time_s, step.displacement_m
+    k0 = step.step_index
+    post_t, post_d = t[k0:], d[k0:]
+    if post_t.size < 20:
+        return (f"{step.source}: only {post_t.size} samples after the step at {step.step_time_s:g} s; "
+                "the step response cannot be judged (record a few seconds after the step)")
+    duration = post_t[-1] - post_t[0]
+    window = max(0.2 * duration, 0.1)
+    first = post_d[post_t <= post_t[0] + window]
+    last_mask = post_t >= post_t[-1] - window
+    last_t, last_d = post_t[last_mask], post_d[last_mask]
+    coef = np.polyfit(last_t - last_t[0], last_d, 1)
+    spread_last = float(np.std(last_d - np.polyval(coef, last_t - last_t[0])))
+    spread_first = float(np.std(first))
+    noise = noise_m if noise_m is not None else 0.0
+    baseline = d[:k0]
+    step_size = abs(float(np.mean(last_d)) - float(np.mean(baseline if baseline.size else d[:1])))
+    if spread_last > 0.25 * spread_first and spread_last > 3.0 * noise:
+        return (
+            f"{step.source}: the step response has not settled: the last {window:.2g} s still oscillate "
+            f"with {spread_last * 1e6:.3g} um RMS ({100 * spread_last / max(spread_first, 1e-30):.0f} % of the "
+            "first window after the step). Record longer after the step; the fit may be poor or the rig "
+            "unstable (check for a growing oscillation)"
+        )
+    drift = abs(coef[0]) * duration
+    if step_size > 0 and drift > 0.1 * step_size and drift > 3.0 * noise:
+        return (
+            f"{step.source}: the step response still drifts at the end of the record "
+            f"({abs(coef[0]) * 1e6:.3g} um/s over the last {window:.2g} s, {100 * drift / step_size:.0f} % of "
+            "the step size over the record): the slow relaxation (eta1) and the final value are poorly "
+            "determined; record longer after the step"
+        )
+    return None
+
+
+def data_warnings(experiments: ExperimentSet) -> list[str]:
+    """Data-quality warnings that do not prevent a fit (unsettled steps, missing data kinds)."""
+    out = []
+    noise = experiments.sensor_noise_m
+    for step in experiments.steps:
+        est = estimate_noise_m(step)
+        sigma = noise if noise is not None else est
+        for w in (rest_warning(step, sigma), step_settling_warning(step, sigma)):
+            if w:
+                out.append(w)
+    if not experiments.static:
+        out.append("no static experiment: the static parameters (beta, gamma, eps_r) come from the base "
+                   "parameters file unchanged")
+    if not experiments.steps and not experiments.sines:
+        out.append("no step or sine experiment: k1, eta1, eta2 are not identified")
+    return out
+
+
+__all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings"]

@@ -1,0 +1,221 @@
+"""Quality and trust of a fit: error indices (Tables III-IV), static errors, parameter statistics.
+
+* :func:`step_error_indices` -- IAE [mm s], ISE [mm^2 s], ITAE [mm s^2] of a step fit (Table III),
+  integrated with the trapezoidal rule over the record; ITAE weights |e| by the time since the step.
+* :func:`resonance_peak_Hz` -- frequency of the RMS maximum of a frequency response, refined by a
+  parabola through the largest sample and its neighbours (Table IV).
+* :func:`static_errors_um` -- RMS and maximum static error in micrometres (Fig. 6, section IV-B).
+* :func:`parameter_statistics` -- standard errors, confidence intervals and the correlation matrix
+  of fitted parameters from the residual Jacobian at the optimum, with the residual variance
+  estimated as SSR / (n - p) (Gauss-Newton / linearised covariance ``s^2 (J^T J)^-1``), and
+  warnings where the data cannot pin a parameter down (relative CI above a limit, |correlation|
+  above a limit, or a rank-deficient Jacobian).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+__all__ = [
+    "ParameterStatistics",
+    "parameter_statistics",
+    "step_error_indices",
+    "resonance_peak_Hz",
+    "static_errors_um",
+    "RELATIVE_CI_LIMIT",
+    "CORRELATION_LIMIT",
+]
+
+#: A parameter whose 95 % CI half-width exceeds this fraction of its value is "not pinned down".
+RELATIVE_CI_LIMIT = 0.5
+#: Pairs of parameters more correlated than this trade off against each other.
+CORRELATION_LIMIT = 0.99
+
+
+@dataclass
+class ParameterStatistics:
+    """Linearised statistics of fitted parameters at the optimum."""
+
+    names: tuple
+    values: np.ndarray
+    std_error: np.ndarray
+    ci_low: np.ndarray
+    ci_high: np.ndarray
+    relative_ci: np.ndarray     # CI half-width / |value| (inf when not identifiable)
+    correlation: np.ndarray
+    residual_std: float         # sqrt(SSR / (n - p)), in residual units
+    dof: int
+    rank: int
+    singular_values: np.ndarray  # of the column-normalised Jacobian, descending
+    confidence: float = 0.95
+    warnings: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        """JSON-friendly summary (CI, relative CI, correlation)."""
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        return {
+            "confidence": self.confidence,
+            "residual_std": num(self.residual_std),
+            "dof": int(self.dof),
+            "rank": int(self.rank),
+            "parameters": {
+                n: {"value": num(v), "std_error": num(s), "ci_low": num(lo), "ci_high": num(hi),
+                    "relative_ci": num(r)}
+                for n, v, s, lo, hi, r in zip(self.names, self.values, self.std_error, self.ci_low,
+                                              self.ci_high, self.relative_ci)
+            },
+            "correlation": [[num(c) for c in row] for row in self.correlation],
+            "warnings": list(self.warnings),
+        }
+
+
+def parameter_statistics(
+    jacobian,
+    residuals,
+    names,
+    values,
+    log_parameters: bool = False,
+    confidence: float = 0.95,
+    relative_ci_limit: float = RELATIVE_CI_LIMIT,
+    correlation_limit: float = CORRELATION_LIMIT,
+    rcond: float = 1e-12,
+    context: str = "",
+) -> ParameterStatistics:
+    """Standard errors, CIs and correlations from the Jacobian of the residuals at the optimum.
+
+    ``jacobian`` (n, p) is d residual / d parameter, or d residual / d ln(parameter)
+    where ``log_parameters`` is True (a bool for all, or one per parameter; the CI is
+    then ``value * exp(+-t s_ln)``, asymmetric).
+    Columns are normalised before the SVD, so ``rcond`` (relative singular-value
+    threshold) detects directions the data do not see whatever the units; those
+    parameters get infinite standard errors. Correlations use a minimally
+    regularised inverse, so a rank-deficient pair still shows |r| -> 1.
+    """
+    jac = np.asarray(jacobian, dtype=float)
+    res = np.asarray(residuals, dtype=float).reshape(-1)
+    values = np.asarray(values, dtype=float).reshape(-1)
+    n, p = jac.shape
+    names = tuple(names)
+    if len(names) != p or values.size != p:
+        raise ValueError(f"names/values must have {p} entries (Jacobian columns)")
+    no_dof = n <= p
+    dof = max(n - p, 1)
+    s2 = float(res @ res) / dof if not no_dof else float("inf")
+    norms = np.linalg.norm(jac, axis=0)
+    norms_safe = np.where(norms > 0, norms, 1.0)
+    jn = jac / norms_safe
+    _u, sv, vt = np.linalg.svd(jn, full_matrices=False)
+    smax = sv[0] if sv.size and sv[0] > 0 else 1.0
+    keep = sv > rcond * smax
+    rank = int(np.count_nonzero(keep))
+    # Covariance of the normalised parameters (pseudo-inverse on the identifiable subspace).
+    inv_s2 = np.where(keep, 1.0 / np.where(keep, sv, 1.0) ** 2, 0.0)
+    cov_n = (vt.T * inv_s2) @ vt
+    var = s2 * np.diag(cov_n) / norms_safe**2
+    null = vt[~keep]
+    unseen = (norms == 0)
+    if null.size:
+        unseen |= np.any(np.abs(null) > 1e-6, axis=0)
+    with np.errstate(invalid="ignore"):
+        std_internal = np.sqrt(np.where(unseen | no_dof, np.inf, var))
+    # Correlations from a ridge-regularised inverse (finite even when rank-deficient).
+    ridge = (1e-10 * smax) ** 2
+    cov_r = (vt.T * (1.0 / (sv**2 + ridge))) @ vt
+    d = np.sqrt(np.diag(cov_r))
+    corr = cov_r / np.outer(d, d)
+    np.fill_diagonal(corr, 1.0)
+    t = float(stats.t.ppf(0.5 + confidence / 2.0, dof))
+    is_log = np.broadcast_to(np.asarray(log_parameters, dtype=bool), (p,))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        lo = np.where(is_log, values * np.exp(-t * std_internal), values - t * std_internal)
+        hi = np.where(is_log, values * np.exp(t * std_internal), values + t * std_internal)
+        std_error = np.where(is_log, np.abs(values) * std_internal, std_internal)
+        rel = np.where(is_log, (hi - lo) / (2.0 * np.abs(values)), t * std_internal / np.abs(values))
+    rel = np.where(np.isfinite(rel), rel, np.inf)
+    warnings = []
+    prefix = f"{context}: " if context else ""
+    if no_dof:
+        warnings.append(f"{prefix}{n} residual(s) for {p} parameters: no degrees of freedom left, the "
+                        "uncertainty of the parameters is unknown (add data)")
+    if rank < p:
+        lost = [nm for nm, u in zip(names, unseen) if u]
+        warnings.append(
+            f"{prefix}the data determine only {rank} combination(s) of the {p} parameters "
+            f"({', '.join(lost)} cannot be pinned down individually)"
+        )
+    for nm, r in zip(names, rel):
+        if r > relative_ci_limit and not ((rank < p or no_dof) and not math.isfinite(r)):
+            warnings.append(
+                f"{prefix}{nm} is poorly determined: {100 * confidence:.0f} % CI half-width is "
+                f"{'infinite' if not math.isfinite(r) else f'{100 * r:.0f} %'} of its value "
+                f"(limit {100 * relative_ci_limit:.0f} %)"
+            )
+    for i in range(p):
+        for j in range(i + 1, p):
+            if abs(corr[i, j]) > correlation_limit:
+                warnings.append(
+                    f"{prefix}{names[i]} and {names[j]} trade off (correlation {corr[i, j]:+.4f}): "
+                    "the data constrain a combination of them, not each one"
+                )
+    return ParameterStatistics(
+        names=names, values=values, std_error=std_error, ci_low=lo, ci_high=hi, relative_ci=rel,
+        correlation=corr, residual_std=math.sqrt(s2), dof=0 if no_dof else dof, rank=rank,
+        singular_values=sv, confidence=confidence, warnings=warnings,
+    )
+
+
+def step_error_indices(time_s, measured_m, simulated_m, step_time_s: float | None = None) -> dict:
+    """IAE [mm s], ISE [mm^2 s] and ITAE [mm s^2] of the step-fit error (Table III).
+
+    The error e = simulated - measured is converted to mm; integrals use the
+    trapezoidal rule over the whole record; ITAE weights |e| by (t - t_step)
+    (0 before the step; t_step defaults to the first sample).
+    """
+    t = np.asarray(time_s, dtype=float)
+    e_mm = (np.asarray(simulated_m, float) - np.asarray(measured_m, float)) * 1e3
+    t_step = float(t[0]) if step_time_s is None else float(step_time_s)
+    weight = np.clip(t - t_step, 0.0, None)
+    trap = np.trapezoid
+    return {
+        "IAE_mm_s": float(trap(np.abs(e_mm), t)),
+        "ISE_mm2_s": float(trap(e_mm**2, t)),
+        "ITAE_mm_s2": float(trap(weight * np.abs(e_mm), t)),
+        "rms_error_um": float(np.sqrt(np.mean(e_mm**2)) * 1e3),
+        "max_error_um": float(np.max(np.abs(e_mm)) * 1e3),
+    }
+
+
+def resonance_peak_Hz(frequency_Hz, d_rms_m) -> float:
+    """Frequency of the largest RMS response, refined by a parabola through its neighbours.
+
+    With a single point or a maximum at the edge of the range the sample frequency is returned.
+    """
+    f = np.asarray(frequency_Hz, dtype=float)
+    r = np.asarray(d_rms_m, dtype=float)
+    order = np.argsort(f)
+    f, r = f[order], r[order]
+    ok = np.isfinite(r)
+    f, r = f[ok], r[ok]
+    if f.size == 0:
+        return float("nan")
+    k = int(np.argmax(r))
+    if k == 0 or k == f.size - 1:
+        return float(f[k])
+    x, y = f[k - 1:k + 2], r[k - 1:k + 2]
+    a = np.polyfit(x, y, 2)
+    if a[0] >= 0:
+        return float(f[k])
+    vertex = -a[1] / (2 * a[0])
+    return float(np.clip(vertex, x[0], x[2]))
+
+
+def static_errors_um(measured_m, predicted_m) -> dict:
+    """RMS and maximum absolute static error (model - measurement) in micrometres."""
+    e = (np.asarray(predicted_m, float) - np.asarray(measured_m, float)) * 1e6
+    return {"rms_error_um": float(np.sqrt(np.mean(e**2))), "max_error_um": float(np.max(np.abs(e)))}

@@ -1,0 +1,410 @@
+"""Outputs of an identification: parameters YAML, PNG figures (Figs. 6-8 style) and ``report.md``.
+
+:func:`write_report` writes into one folder::
+
+    params.yaml        fitted MembraneParameters (loadable by MembraneParameters.from_yaml)
+    report.md          parameter table (Table II style, with 95 % CIs), metrics (Tables III-IV),
+                       correlations, warnings, timings
+    result.json        the same content, machine readable
+    static.png         Fig. 6: rest displacement vs voltage (and vs mass), data and model
+    step.png           Fig. 8 left: step responses, data and model, and the error
+    frequency.png      Fig. 8 right: RMS displacement vs frequency, data and model
+    sine_series.png    sampled sine records vs model (when the data include them)
+
+Figures are drawn on :class:`matplotlib.figure.Figure` objects (Agg), without pyplot state.
+"""
+from __future__ import annotations
+
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .pipeline import IdentificationResult
+from .static_fit import stress_combinations
+
+__all__ = ["write_report", "write_parameters", "plot_static", "plot_steps", "plot_frequency",
+           "plot_sine_series", "report_markdown"]
+
+
+def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
+    """Fitted parameters as YAML with a header naming the data and the methods."""
+    path = Path(path)
+    exp = result.experiments
+    lines = [
+        f"fitted by dea_ros.identify from {exp.folder if exp.folder else 'in-memory data'} ({exp.summary()})",
+        f"static fit: {result.options.get('static_method')}, dynamic fit: {result.options.get('dynamic_method')} "
+        f"with frequency response by {result.options.get('frequency_method')}",
+    ]
+    if result.static is not None and result.static.method == "lsq":
+        c = result.static.combinations_Pa
+        lines.append(f"identified: sigma_h(1) = {c[0]:.6g} Pa, sigma_h'(1) = {c[1]:.6g} Pa, eps_r; beta/gamma are "
+                     f"one representative ({result.static.representation}), not individually identifiable")
+    result.parameters.to_yaml(path, header="\n".join(lines))
+    return path
+
+
+def _fig(width=7.0, height=4.5, nrows=1, ncols=1, **kw):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), layout="constrained")
+    axes = fig.subplots(nrows, ncols, **kw)
+    return fig, axes
+
+
+def plot_static(result: IdentificationResult, path: str | Path) -> Path | None:
+    """Fig. 6: rest displacement vs voltage at the loaded mass(es), and vs mass at 0 V."""
+    curves = result.curves.get("static")
+    if not curves:
+        return None
+    data = curves["data"]
+    fig, (ax1, ax2, ax3) = _fig(13.0, 4.2, 1, 3)
+    volt = np.abs(data.voltage_V) > 0
+    for m, (u, d) in curves["voltage_curves"].items():
+        sel = volt & (data.mass_kg == m)
+        ax1.plot(u / 1e3, d * 1e3, "-", label=f"model, {m * 1e3:g} g")
+        ax1.plot(data.voltage_V[sel] / 1e3, data.displacement_m[sel] * 1e3, "x", ms=8, label=f"data, {m * 1e3:g} g")
+        zero = (~volt) & (data.mass_kg == m)
+        if np.any(zero):
+            ax1.plot(np.zeros(np.count_nonzero(zero)), data.displacement_m[zero] * 1e3, "x", ms=8, color="C1")
+    ax1.set_xlabel("voltage (kV)")
+    ax1.set_ylabel("displacement d (mm)")
+    ax1.set_title(f"{result.parameters.name}: static displacement vs voltage")
+    ax1.grid(alpha=0.3)
+    ax1.legend(fontsize=8)
+    masses, d_mass = curves["mass_curve"]
+    sel = ~volt
+    ax2.plot(masses * 1e3, d_mass * 1e3, "-", label="model, 0 V")
+    ax2.plot(data.mass_kg[sel] * 1e3, data.displacement_m[sel] * 1e3, "x", ms=8, label="data, 0 V")
+    ax2.set_xlabel("mass (g)")
+    ax2.set_ylabel("displacement d (mm)")
+    ax2.set_title("static displacement vs mass")
+    ax2.grid(alpha=0.3)
+    ax2.legend(fontsize=8, loc="upper left")
+    err = (curves["predicted_m"] - data.displacement_m) * 1e6
+    ax3.plot(np.arange(err.size) + 1, err, "o", ms=4)
+    ax3.axhline(0.0, color="k", lw=0.6)
+    ax3.set_xlabel("static point (file order)")
+    ax3.set_ylabel("model - data (um)")
+    ax3.set_title("static error")
+    ax3.grid(alpha=0.3)
+    fig.savefig(path, dpi=110)
+    return Path(path)
+
+
+def plot_steps(result: IdentificationResult, path: str | Path) -> Path | None:
+    """Fig. 8 (left): each step response, data and model, with the error below."""
+    steps = result.curves.get("steps")
+    if not steps:
+        return None
+    n = len(steps)
+    fig, axes = _fig(9.0, 3.2 * n + 1.5, 2 * n, 1, squeeze=False, sharex=False,
+                     gridspec_kw={"height_ratios": [3, 1] * n})
+    axes = axes[:, 0]
+    for k, item in enumerate(steps):
+        step, sim = item["step"], item["simulated_m"]
+        ax, axe = axes[2 * k], axes[2 * k + 1]
+        ax.plot(step.time_s, step.displacement_m * 1e3, ".", ms=1.5, color="0.55", label="data")
+        ax.plot(step.time_s, sim * 1e3, "-", lw=0.9, color="C0", label="model")
+        ax.set_ylabel("d (mm)")
+        ax.set_title(f"{result.parameters.name}: step {step.initial_V:g} V -> {step.final_V:g} V "
+                     f"({Path(step.source).name})")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+        axe.plot(step.time_s, (sim - step.displacement_m) * 1e6, lw=0.5, color="C3")
+        axe.set_ylabel("model - data (um)")
+        axe.set_xlabel("time (s)")
+        axe.grid(alpha=0.3)
+    fig.savefig(path, dpi=110)
+    return Path(path)
+
+
+def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | None:
+    """Fig. 8 (right): RMS displacement (eq. 21) vs frequency, data and model (unstable: dotted)."""
+    sines = result.curves.get("sines")
+    if not sines:
+        return None
+    fig, ax = _fig(8.0, 4.8)
+    fit_f = set()
+    if result.dynamic is not None:
+        fit_f = {round(float(f), 9) for f in result.dynamic.fit_frequencies_Hz}
+    for k, item in enumerate(sines):
+        sine = item["sine"]
+        for amp, f_dense, rms, stab in item["dense"]:
+            color = f"C{k}"
+            stable_curve = np.where(stab, rms, np.nan)
+            unstable_curve = np.where(~stab, rms, np.nan)
+            ax.plot(f_dense, stable_curve * 1e3, "-", color=color, label=f"model, {amp / 1e3:g} kV")
+            if np.any(np.isfinite(unstable_curve)):
+                ax.plot(f_dense, unstable_curve * 1e3, ":", color=color, label="model, unstable orbit")
+        ax.plot(sine.frequency_Hz, sine.d_rms_m * 1e3, "x", color="k", ms=7, label="data")
+        fitted = np.array([round(float(f), 9) in fit_f for f in sine.frequency_Hz])
+        if np.any(fitted):
+            ax.plot(sine.frequency_Hz[fitted], sine.d_rms_m[fitted] * 1e3, "o", mfc="none", color="C3", ms=11,
+                    label="used in the fit (eq. 24)")
+    for entry in result.evaluation.get("frequency_response", []):
+        for res in entry.get("resonance", []):
+            ax.axvline(res["measured_peak_Hz"], color="k", lw=0.6, ls="--")
+            ax.axvline(res["simulated_peak_Hz"], color="C0", lw=0.6, ls="--")
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("d_rms (mm), eq. 21")
+    ax.set_title(f"{result.parameters.name}: frequency response (dashed: peaks, data black / model blue)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(path, dpi=110)
+    return Path(path)
+
+
+def plot_sine_series(result: IdentificationResult, path: str | Path) -> Path | None:
+    """Sampled sine records (the paper's 2 Hz and 12.5 Hz validation) vs the model."""
+    items = [s for item in result.curves.get("sines", []) for s in item["series"]]
+    if not items:
+        return None
+    fig, axes = _fig(9.0, 2.8 * len(items) + 0.8, len(items), 1, squeeze=False)
+    for ax, item in zip(axes[:, 0], items):
+        ser = item["series"]
+        show = ser.time_s <= ser.time_s[0] + max(3.0 / ser.frequency_Hz, 0.2)
+        ax.plot(ser.time_s[show], ser.displacement_m[show] * 1e3, ".", ms=2, color="0.55", label="data")
+        ax.plot(ser.time_s[show], item["model_m"][show] * 1e3, "-", color="C0", label="model")
+        ax.set_title(f"{ser.frequency_Hz:g} Hz: RMS error {item['rms_error_um']:.3g} um")
+        ax.set_ylabel("d (mm)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.savefig(path, dpi=110)
+    return Path(path)
+
+
+def _fmt(x, digits=4):
+    if x is None:
+        return "-"
+    if isinstance(x, str):
+        return x
+    x = float(x)
+    if not math.isfinite(x):
+        return "inf"
+    return f"{x:.{digits}g}"
+
+
+def _ci_text(stats, name, scale=1.0):
+    if stats is None or name not in stats.names:
+        return "-", "-"
+    i = stats.names.index(name)
+    lo, hi, rel = stats.ci_low[i], stats.ci_high[i], stats.relative_ci[i]
+    if not math.isfinite(rel):
+        return "not identifiable", "inf"
+    return f"[{_fmt(lo * scale)}, {_fmt(hi * scale)}]", f"{100 * rel:.2g} %"
+
+
+def report_markdown(result: IdentificationResult, figures: dict, timings_extra: dict | None = None) -> str:
+    """The text of ``report.md``."""
+    p = result.parameters
+    exp = result.experiments
+    st, dy = result.static, result.dynamic
+    out = [f"# Identification report: membrane {p.name}", ""]
+    out.append(f"Data: `{exp.folder}` ({exp.summary()}). Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by "
+               "`dea_ros.identify` (paper sections IV-B/C, eqs. 19-24).")
+    out.append("")
+    out.append(f"Methods: static fit **{result.options.get('static_method')}**, dynamic fit "
+               f"**{result.options.get('dynamic_method')}**, frequency response by "
+               f"**{result.options.get('frequency_method')}** ({result.options.get('n_harmonics')} harmonics).")
+    out.append("")
+    # ---- warnings first: they matter most
+    out.append("## Warnings")
+    out.append("")
+    if result.warnings:
+        out += [f"- {w}" for w in result.warnings]
+    else:
+        out.append("None: every parameter is determined by the data and the model reproduces the data "
+                   "within the noise.")
+    out.append("")
+    # ---- parameter table (Table II)
+    out.append("## Parameters (Table II)")
+    out.append("")
+    out.append("| Parameter | Symbol | Value | Unit | 95 % CI | rel. CI |")
+    out.append("|---|---|---|---|---|---|")
+    out.append(f"| Membrane name | | {p.name} | | | |")
+    out.append(f"| Prestretch (given) | lambda_p | {_fmt(p.prestretch)} | - | | |")
+    out.append(f"| Thickness (given) | z0 | {_fmt(p.thickness_m * 1e6)} | um | | |")
+    out.append(f"| Plate radius (given) | r | {_fmt(p.plate_radius_m * 1e3)} | mm | | |")
+    out.append(f"| Electrode width (given) | l0 | {_fmt(p.electrode_width_m * 1e3)} | mm | | |")
+    out.append(f"| Mass (given) | m | {_fmt(p.mass_kg * 1e3)} | g | | |")
+    sstats = st.statistics if st is not None else None
+    ci, rel = _ci_text(sstats, "eps_r")
+    out.append(f"| Relative permittivity | eps_r | {_fmt(p.relative_permittivity)} | - | {ci} | {rel} |")
+    dstats = dy.statistics if dy is not None else None
+    for name, sym, unit, scale in (("k1_Pa", "k1", "MPa", 1e-6), ("eta1_Pa_s", "eta1", "MPa s", 1e-6),
+                                   ("eta2_Pa_s", "eta2", "kPa s", 1e-3)):
+        ci, rel = _ci_text(dstats, name, scale)
+        out.append(f"| Viscoelastic model | {sym} | {_fmt(getattr(p, name) * scale)} | {unit} | {ci} | {rel} |")
+    combos = stress_combinations(p.beta_Pa, p.gamma_Pa)
+    if dy is not None and dy.curvature_fitted:
+        ci, rel = _ci_text(dstats, "sigma_h''(1)_Pa", 1e-3)
+        out.append(f"| Hyperelastic stress (identified, dynamic) | sigma_h''(1) | {_fmt(combos[2] * 1e-3)} | kPa | "
+                   f"{ci} | {rel} |")
+    if st is not None and st.method == "lsq":
+        for k, (name, sym) in enumerate((("sigma_h(1)_Pa", "sigma_h(1) = sum(beta - gamma)"),
+                                         ("sigma_h'(1)_Pa", "sigma_h'(1) = sum i (beta + gamma)"))):
+            ci, rel = _ci_text(sstats, name, 1e-3)
+            out.append(f"| Hyperelastic stress (identified) | {sym} | {_fmt(combos[k] * 1e-3)} | kPa | {ci} | {rel} |")
+    for i in range(3):
+        out.append(f"| Ogden coefficient | beta_{i + 1} | {_fmt(p.beta_Pa[i] * 1e-3)} | kPa | see note | |")
+    for i in range(3):
+        out.append(f"| Ogden coefficient | gamma_{i + 1} | {_fmt(p.gamma_Pa[i] * 1e-3)} | kPa | see note | |")
+    out.append("")
+    if st is not None:
+        og = st.ogden_statistics
+        sv = og.singular_values / og.singular_values[0]
+        curv = ""
+        if dy is not None and dy.curvature_fitted:
+            curv = (" sigma_h''(1) (the curvature) was identified by the dynamic fit from the large-amplitude "
+                    f"response: {_fmt(combos[2] * 1e-3)} kPa.")
+        out.append(
+            "Note on beta/gamma: the deflections probe sigma_h only near stretch 1. The normalised singular values "
+            "of the Jacobian of the static residuals w.r.t. (beta_1..3, gamma_1..3, eps_r) are "
+            + ", ".join(f"{x:.2g}" for x in sv)
+            + f": the data determine {int(np.count_nonzero(sv > 1e-3))} combinations, in practice sigma_h(1), "
+            f"sigma_h'(1) and eps_r. The values above are one representative ({st.representation}); any "
+            "beta/gamma with the same sigma_h(1), sigma_h'(1) fits the static data equally well." + curv
+        )
+        out.append("")
+    # ---- metrics
+    out.append("## Quality of the fit")
+    out.append("")
+    ev = result.evaluation
+    if "static" in ev:
+        out.append(f"Static (Fig. 6): RMS error {_fmt(ev['static']['rms_error_um'])} um, max "
+                   f"{_fmt(ev['static']['max_error_um'])} um over {st.mass_kg.size if st else '?'} points.")
+        out.append("")
+    if "steps" in ev:
+        out.append("Step responses (Table III; error = model - data):")
+        out.append("")
+        out.append("| Record | IAE [mm s] | ISE [mm^2 s] | ITAE [mm s^2] | RMS error [um] | max error [um] | noise [um] |")
+        out.append("|---|---|---|---|---|---|---|")
+        for s in ev["steps"]:
+            out.append(f"| {Path(s['source']).name} | {_fmt(s['IAE_mm_s'])} | {_fmt(s['ISE_mm2_s'])} | "
+                       f"{_fmt(s['ITAE_mm_s2'])} | {_fmt(s['rms_error_um'])} | {_fmt(s['max_error_um'])} | "
+                       f"{_fmt(s['noise_um'])} |")
+        out.append("")
+    if "transient_solver_max_difference_um" in ev:
+        out.append(f"Fast transient solver (used in the fit) vs adaptive integration at the optimum: max "
+                   f"difference {_fmt(ev['transient_solver_max_difference_um'])} um.")
+        out.append("")
+    for entry in ev.get("frequency_response", []):
+        out.append(f"Frequency response ({Path(entry['source']).name}, {entry['frequencies']} frequencies): RMS error "
+                   f"{_fmt(entry['rms_error_um'])} um, max {_fmt(entry['max_error_um'])} um "
+                   f"(max {_fmt(entry['max_relative_error_percent'], 3)} % of the RMS).")
+        out.append("")
+        if entry.get("resonance"):
+            out.append("| Amplitude | Resonance peak, model [Hz] | Resonance peak, data [Hz] | Error (Table IV) |")
+            out.append("|---|---|---|---|")
+            for r in entry["resonance"]:
+                out.append(f"| {r['amplitude_V'] / 1e3:g} kV | {_fmt(r['simulated_peak_Hz'])} | "
+                           f"{_fmt(r['measured_peak_Hz'])} | {_fmt(r['error_percent'], 3)} % |")
+            out.append("")
+        for k, v in entry.get("series_rms_error_um", {}).items():
+            out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um")
+        if entry.get("series_rms_error_um"):
+            out.append("")
+    # ---- fits
+    if st is not None:
+        out.append("## Static fit (eqs. 19-20)")
+        out.append("")
+        out.append(f"Method `{st.method}`, {st.n_evaluations} model evaluations, {_fmt(st.wall_time_s * 1e3, 3)} ms.")
+        if st.starts:
+            out.append("")
+            out.append("| Start | Result |")
+            out.append("|---|---|")
+            for s in st.starts:
+                out.append(f"| {s.get('start')} | " + ", ".join(f"{k} = {_fmt(v)}" for k, v in s.items()
+                                                             if k != "start") + " |")
+        out.append("")
+        out.append(_stats_table(st.statistics))
+    if dy is not None:
+        out.append("## Dynamic fit (eqs. 22-24)")
+        out.append("")
+        pts = ", ".join(f"{f:g}" for f in dy.fit_frequencies_Hz)
+        out.append(f"Method `{dy.method}`, frequency response by `{dy.frequency_method}`; fit frequencies {pts} Hz; "
+                   f"cost J (eq. 22) = {_fmt(dy.cost)} (step {_fmt(dy.step_cost)}, frequency {_fmt(dy.frequency_cost)}); "
+                   f"{dy.n_evaluations} evaluations ({dy.n_jacobians} with Jacobian).")
+        init = dy.initial
+        out.append("")
+        out.append(f"Initial guess from the {init.get('source')}: oscillation {_fmt(init.get('oscillation_Hz'))} Hz, "
+                   f"decay {_fmt(init.get('decay_rate_per_s'))} 1/s, then a scan of eta1/k1.")
+        out.append("")
+        out.append(_stats_table(dy.statistics))
+    # ---- timings
+    out.append("## Timings")
+    out.append("")
+    out.append("| Stage | Wall time [s] |")
+    out.append("|---|---|")
+    timings = dict(result.timings_s)
+    timings.update(timings_extra or {})
+    for k, v in timings.items():
+        out.append(f"| {k} | {v:.3f} |")
+    out.append("")
+    out.append(f"Machine: {platform.machine()}, Python {platform.python_version()}.")
+    out.append("")
+    if figures:
+        out.append("## Figures")
+        out.append("")
+        for title, name in figures.items():
+            out.append(f"### {title}")
+            out.append("")
+            out.append(f"![{title}]({name})")
+            out.append("")
+    return "\n".join(out)
+
+
+def _stats_table(stats) -> str:
+    if stats is None:
+        return ""
+    lines = ["| Parameter | Value | Std. error | 95 % CI | rel. CI |", "|---|---|---|---|---|"]
+    for i, n in enumerate(stats.names):
+        rel = stats.relative_ci[i]
+        lines.append(f"| {n} | {_fmt(stats.values[i], 6)} | {_fmt(stats.std_error[i])} | "
+                     f"[{_fmt(stats.ci_low[i])}, {_fmt(stats.ci_high[i])}] | "
+                     f"{'inf' if not math.isfinite(rel) else f'{100 * rel:.2g} %'} |")
+    lines.append("")
+    lines.append("Correlation matrix:")
+    lines.append("")
+    lines.append("| | " + " | ".join(stats.names) + " |")
+    lines.append("|---" * (len(stats.names) + 1) + "|")
+    for i, n in enumerate(stats.names):
+        lines.append(f"| {n} | " + " | ".join(f"{stats.correlation[i, j]:+.3f}" for j in range(len(stats.names))) + " |")
+    lines.append("")
+    lines.append(f"Residual std. {_fmt(stats.residual_std)} ({stats.dof} degrees of freedom), rank {stats.rank}.")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def write_report(result: IdentificationResult, out_dir: str | Path, plots: bool = True) -> dict:
+    """Write params.yaml, the figures, report.md and result.json into ``out_dir``; return the paths
+    and the time spent (``report_s``)."""
+    t0 = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"params": write_parameters(result, out / "params.yaml")}
+    figures = {}
+    if plots:
+        for title, name, fn in (("Static displacement (Fig. 6)", "static.png", plot_static),
+                                ("Step response (Fig. 8, left)", "step.png", plot_steps),
+                                ("Frequency response (Fig. 8, right)", "frequency.png", plot_frequency),
+                                ("Sampled sine records", "sine_series.png", plot_sine_series)):
+            written = fn(result, out / name)
+            if written is not None:
+                figures[title] = name
+                paths[name] = written
+    report_time = time.perf_counter() - t0
+    text = report_markdown(result, figures, {"report (plots, files)": report_time})
+    (out / "report.md").write_text(text)
+    paths["report"] = out / "report.md"
+    data = result.to_dict()
+    data["timings_s"]["report"] = report_time
+    (out / "result.json").write_text(json.dumps(data, indent=2))
+    paths["json"] = out / "result.json"
+    paths["report_s"] = time.perf_counter() - t0
+    return paths
