@@ -15,6 +15,7 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/config/membranes", glob("config/membranes/*.yaml")),
         ("share/" + package_name + "/config/protocols", glob("config/protocols/*.yaml")),
+        ("share/" + package_name + "/config/rig", glob("config/rig/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
     ],
     # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2

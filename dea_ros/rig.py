@@ -134,16 +134,32 @@ def cmd_rig_up(args) -> int:
         rig.stop()
 
 
+def resolve_true_params(value: str, membrane: str) -> str:
+    """The simulated membrane: 'same', a path, or a path relative to the package's config/."""
+    from .model.parameters import config_dir
+
+    if value in (None, "", "same"):
+        return membrane
+    if Path(value).is_file():
+        return str(Path(value).resolve())
+    candidate = config_dir() / value
+    if candidate.is_file():
+        return str(candidate)
+    raise FileNotFoundError(f"--true-params: no file {value!r} (nor {candidate})")
+
+
 def cmd_rig_demo(args) -> int:
     out = Path(args.out).resolve()
+    args.true_params = resolve_true_params(args.true_params, args.membrane)
     run_name = args.run_name or time.strftime("demo_%Y%m%d_%H%M%S")
     run_dir = out / run_name
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "logs").mkdir(exist_ok=True)
     rig = RigProcesses(quiet=not args.verbose, log_dir=run_dir / "logs")
     t_start = time.monotonic()
-    print(f"dea-ros rig demo: membrane {args.membrane} on mock hardware, protocol '{args.protocol}', "
-          f"simulated time x{args.speed:g}; logs in {run_dir / 'logs'}", flush=True)
+    print(f"dea-ros rig demo: mock rig simulating {args.true_params}; identification from the nominal "
+          f"{args.membrane}; protocol '{args.protocol}', simulated time up to x{args.speed:g}; "
+          f"logs in {run_dir / 'logs'}", flush=True)
     try:
         start_rig(rig, args.membrane, sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
                   update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise)
@@ -197,7 +213,10 @@ def register(subparsers) -> None:
     up.set_defaults(func=cmd_rig_up)
     demo = sub.add_parser("demo", help="main job: protocol on the mock rig -> bag -> identified parameters + plots")
     demo.add_argument("--membrane", default="A2", help="membrane of the rig (preset or YAML; geometry for the fit)")
-    demo.add_argument("--true-params", help="parameters of the simulated membrane (default: --membrane)")
+    demo.add_argument("--true-params", default="rig/mock_membrane.yaml",
+                      help="parameters of the simulated membrane: a YAML (relative paths: in the package's "
+                           "config/), or 'same' for --membrane (default: rig/mock_membrane.yaml, A2 with "
+                           "different material parameters)")
     demo.add_argument("--protocol", default="paper", help="protocol in config/protocols (paper, quick) or a YAML")
     demo.add_argument("--speed", type=float, default=2.0, help="simulated seconds per wall-clock second")
     demo.add_argument("--rate", type=float, default=500.0, help="command/amplifier/clock rate, Hz (simulated)")

@@ -168,7 +168,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         return td[k], dd[k]
 
     def voltage_at(t):
-        idx = np.clip(np.searchsorted(tv, t, side="right") - 1, 0, tv.size - 1)
+        """Zero-order hold of the applied voltage at times t (s, relative to t0).
+
+        A change stamped at t_k holds from t_k on. Stamps are epoch seconds, whose float64
+        resolution is ~0.2 us: without the 1 us tolerance a sample taken at the very instant of
+        a change would often get the previous voltage (a one-sample, 1 ms, delay of the step).
+        """
+        idx = np.clip(np.searchsorted(tv, t + 1e-6, side="right") - 1, 0, tv.size - 1)
         return uv[idx]
 
     static_m, static_u, static_d = [], [], []

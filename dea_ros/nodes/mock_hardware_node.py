@@ -66,7 +66,10 @@ class RigSimulator:
         self.params = params
         self.stepper = RealTimeStepper(params, dt_s=physics_dt_s)
         self.dt_s = physics_dt_s
-        self.t_s = t0_s
+        # Time is kept relative to t0: absolute epoch seconds (~1.8e9) resolve only ~0.2 us in
+        # float64, and summing physics steps there drifts step boundaries off the clock ticks.
+        self.t0_s = float(t0_s)
+        self.steps = 0
         self.voltage_V = 0.0
         self.noise_m = noise_m
         self.quantisation_m = quantisation_m
@@ -74,9 +77,13 @@ class RigSimulator:
         self.rng = np.random.default_rng(seed)
         self.lock = threading.Lock()
         n = int(history_s / physics_dt_s) + 2
-        self.history = collections.deque(maxlen=n)
-        self.history.append((t0_s, self.stepper.displacement_m))
-        self.steps = 0
+        self.history = collections.deque(maxlen=n)   # (time relative to t0, displacement)
+        self.history.append((0.0, self.stepper.displacement_m))
+
+    @property
+    def t_s(self) -> float:
+        """Current simulation time (absolute, s)."""
+        return self.t0_s + self.steps * self.dt_s
 
     def set_voltage(self, voltage_V: float) -> None:
         with self.lock:
@@ -84,35 +91,35 @@ class RigSimulator:
 
     def advance_to(self, t_s: float) -> None:
         with self.lock:
-            self._advance_locked(t_s)
+            self._advance_locked(t_s - self.t0_s)
 
-    def _advance_locked(self, t_s: float) -> None:
-        while self.t_s + self.dt_s <= t_s + 1e-12:
+    def _advance_locked(self, t_rel: float) -> None:
+        target = int(math.floor(t_rel / self.dt_s + 1e-6))  # whole steps up to t (step boundaries exact)
+        while self.steps < target:
             self.stepper.step(self.voltage_V)
-            self.t_s += self.dt_s
             self.steps += 1
-            self.history.append((self.t_s, self.stepper.displacement_m))
+            self.history.append((self.steps * self.dt_s, self.stepper.displacement_m))
 
     def true_displacement_m(self, t_s: float) -> float:
         """Displacement at t (interpolated in the history; the future is integrated first)."""
         with self.lock:
-            if t_s > self.t_s:
-                self._advance_locked(t_s)
+            t_rel = t_s - self.t0_s
+            if t_rel > self.steps * self.dt_s:
+                self._advance_locked(t_rel)
             hist = self.history
-            if t_s >= hist[-1][0]:
+            if t_rel >= hist[-1][0]:
                 return hist[-1][1]
-            if t_s <= hist[0][0]:
+            if t_rel <= hist[0][0]:
                 return hist[0][1]
-            # binary search in the deque (convert lazily: the deque is short)
             lo, hi = 0, len(hist) - 1
             while hi - lo > 1:
                 mid = (lo + hi) // 2
-                if hist[mid][0] <= t_s:
+                if hist[mid][0] <= t_rel:
                     lo = mid
                 else:
                     hi = mid
             (ta, da), (tb, db) = hist[lo], hist[hi]
-            return da + (db - da) * (t_s - ta) / (tb - ta)
+            return da + (db - da) * (t_rel - ta) / (tb - ta)
 
     def measure(self, t_acq_s: float) -> float:
         """Laser reading for an acquisition at t: latency, noise, quantisation."""
@@ -169,6 +176,7 @@ class MockHardwareNode(Node):
         except (ParameterError, FileNotFoundError) as exc:
             raise SystemExit(f"mock_hardware_node: parameter 'params_file': {exc}") from None
         self.receiver = MockAmplifierReceiver(port=self.amplifier_port)
+        self.tick_index = 0                      # /clock ticks published (simulated time)
         self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
         self.clock_time_s: float | None = None   # last /clock published
         self.tick_wall_s = time.monotonic()
@@ -271,7 +279,7 @@ class MockHardwareNode(Node):
 
     def on_sim_tick(self) -> None:
         self.poll_amplifier()
-        if (self.sim.t_s - self.sim_t0) > (time.monotonic() - self.wall_t0) * self.real_time_factor:
+        if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self.real_time_factor:
             return  # ahead of the requested speed
         if self.lockstep and self.clock_time_s is not None and self.waiting_for_participants():
             # the amplifier has not acted on the last tick yet: do not run ahead of the controller
@@ -283,7 +291,8 @@ class MockHardwareNode(Node):
                 self.get_logger().warning(
                     f"amplifier silent for {waited:.2f} s (wall) at simulated t = {self.clock_time_s:.3f} s: "
                     f"continuing with the held voltage ({self.lockstep_timeouts} timeouts)")
-        t_new = self.sim.t_s + 1.0 / self.clock_rate_hz
+        self.tick_index += 1
+        t_new = self.sim.t0_s + self.tick_index / self.clock_rate_hz
         self.sim.advance_to(t_new)
         self.emit_samples(t_new, 0.0)
         self.clock_time_s = t_new

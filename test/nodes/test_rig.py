@@ -72,6 +72,11 @@ def test_voltage_step_on_the_mock_rig_matches_the_model(ros_context, spin_until)
     order = np.argsort(tp)
     tp, dp = tp[order], dp[order]
     window = (tm > tp[0] + 0.05) & (tm < t_deactivate_ros)
+    # compare only where two predictions close around the measurement (a dropped best-effort
+    # prediction would otherwise be interpolated across a fast transient)
+    k = np.clip(np.searchsorted(tp, tm), 1, tp.size - 1)
+    window &= (tp[k] - tp[k - 1]) < 2.5e-3
+    assert window.sum() > 500
     err = dm[window] - np.interp(tm[window], tp, dp)
     rest = static_equilibrium(preset("A1"), 0.0).displacement_m
     assert dm.max() > rest + 50e-6  # the step moved the mass
