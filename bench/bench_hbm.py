@@ -15,13 +15,13 @@ Run: python bench/bench_hbm.py [--quick]   (prints markdown; also written to ben
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import time
 from pathlib import Path
 
 import numpy as np
+
+from machine_info import machine
 
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.solvers.continuation import frequency_sweep
@@ -29,22 +29,6 @@ from dea_ros.solvers.harmonic_balance import HarmonicBalanceError, solve_native
 from dea_ros.solvers.inputs import SinePeriodic
 from dea_ros.solvers.mousai_backend import solve_mousai
 from dea_ros.solvers.steady_state import integrate_to_steady_state
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import numpy
-    import scipy
-
-    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
-            f"numpy {numpy.__version__}, scipy {scipy.__version__}")
 
 
 def timed(fn, repeats=1):

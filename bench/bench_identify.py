@@ -21,8 +21,6 @@ Prints markdown tables (machine, results) for docs/benchmarks.md.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -37,23 +35,18 @@ from dea_ros.identify.pipeline import identify
 from dea_ros.identify.report import write_report
 from dea_ros.identify.static_fit import fit_static
 from dea_ros.identify.synth import synthesize
+import sys
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine_info import machine_info  # noqa: E402
+
 from dea_ros.model import preset
 from dea_ros.solvers.inputs import SampledVoltage
 from dea_ros.solvers.integrate import simulate
 from dea_ros.solvers.transient import TransientCollocation
 
 
-def machine() -> dict:
-    cpu = platform.processor() or "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"nproc": os.cpu_count(), "cpu": cpu, "python": platform.python_version(),
-            "numpy": np.__version__, "scipy": scipy.__version__, "platform": platform.platform()}
+machine = machine_info
 
 
 def bench_whole(folder: Path, out: Path) -> dict:

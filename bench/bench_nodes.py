@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_hbm import machine  # noqa: E402
+from machine_info import machine  # noqa: E402
 
 PUBLISHER = r"""
 import sys, time, rclpy

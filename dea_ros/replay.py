@@ -8,7 +8,6 @@ published on ``/clock`` so that nodes with ``use_sim_time`` (e.g. model_node) ru
 from __future__ import annotations
 
 import importlib
-import sys
 import time
 
 __all__ = ["register", "replay", "message_class"]
@@ -38,7 +37,8 @@ def _rclpy_qos(profiles):
 
 
 def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_offset_s: float = 0.0,
-           publish_clock: bool = False, quiet: bool = False, max_loops: int | None = None) -> int:
+           publish_clock: bool = False, quiet: bool = False, max_loops: int | None = None,
+           max_gap_s: float = 10.0) -> int:
     """Republish; returns the number of messages published."""
     import rclpy
     from rclpy.node import Node
@@ -54,7 +54,9 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
         missing = [t for t in wanted if t not in info]
         if missing:
             raise ValueError(f"{bag_path}: topics {missing} are not in the bag (it has {sorted(info)})")
-        t_first = bag.start_time_ns
+        # the first real log time (a message logged with time 0, e.g. before a simulated clock
+        # started, would otherwise make the replay wait decades)
+        t_first = next((m.log_time_ns for m in bag.raw_messages(wanted) if m.log_time_ns > 0), 0)
     rclpy.init()
     node = Node("dea_ros_replay")
     pubs = {t: node.create_publisher(message_class(info[t].type), t, _rclpy_qos(info[t].qos_profiles))
@@ -67,12 +69,19 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
         while True:
             start_wall = time.monotonic()
             offset_ns = int(start_offset_s * 1e9)
+            skipped_ns = 0
+            previous_ns = None
             with BagReader(bag_path) as bag:
                 for msg in bag.raw_messages(wanted):
                     rel = msg.log_time_ns - t_first - offset_ns
                     if rel < 0:
                         continue
-                    delay = start_wall + rel * 1e-9 / rate - time.monotonic()
+                    if previous_ns is not None and msg.log_time_ns - previous_ns > max_gap_s * 1e9:
+                        skipped_ns += msg.log_time_ns - previous_ns  # a long pause in the log: do not wait it out
+                        if not quiet:
+                            print(f"replay: skipping a gap of {(msg.log_time_ns - previous_ns) * 1e-9:.1f} s")
+                    previous_ns = msg.log_time_ns
+                    delay = start_wall + (rel - skipped_ns) * 1e-9 / rate - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
                     if clock_pub is not None:
@@ -96,7 +105,7 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
 
 def cmd_replay(args) -> int:
     n = replay(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, start_offset_s=args.start_offset,
-               publish_clock=args.clock)
+               publish_clock=args.clock, max_gap_s=args.max_gap)
     print(f"replayed {n} messages from {args.bag}")
     return 0
 
@@ -109,8 +118,7 @@ def register(subparsers) -> None:
     p.add_argument("--topics", nargs="+", help="only these topics (default: all)")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--clock", action="store_true", help="publish the bag time on /clock (use_sim_time)")
+    p.add_argument("--max-gap", type=float, default=10.0, metavar="S",
+                   help="pauses in the log longer than this are skipped, not waited out")
     p.set_defaults(func=cmd_replay)
 
-
-if __name__ == "__main__":
-    sys.exit(0)

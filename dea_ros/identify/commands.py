@@ -135,14 +135,19 @@ def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | Non
         return None
     if not is_bag(path):
         return None
+    from ..bag.errors import BagError
     from ..model.parameters import ParameterError
     from .experiments import ExperimentError
 
     say = None if args.quiet else (lambda msg: print(f"[bag] {msg}", file=sys.stderr, flush=True))
     try:
+        from ..bag.extract import BagTopics
+
+        topics = BagTopics(voltage=args.voltage_topic, displacement=args.displacement_topic)
         summary = identify_bag(path, args.out, membrane=args.membrane, progress=say, plots=not args.no_plots,
+                               topics=topics, segments_file=args.segments,
                                **_identify_options(args, fit_freqs))
-    except (ExperimentError, ParameterError) as exc:
+    except (ExperimentError, ParameterError, BagError, FileNotFoundError) as exc:
         print(f"dea-ros identify: error: {exc}", file=sys.stderr)
         return 2
     except (RuntimeError, ArithmeticError, ValueError, OSError) as exc:
@@ -207,6 +212,13 @@ def register(subparsers) -> dict:
     ident.add_argument("--fit-curvature", choices=("auto", "yes", "no"), default="auto",
                        help="identify sigma_h''(1) in the dynamic fit (auto: with --weights noise)")
     ident.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    ident.add_argument("--voltage-topic", default="/dea/voltage",
+                       help="bags: applied-voltage topic (BatteryState or Float64; default /dea/voltage)")
+    ident.add_argument("--displacement-topic", default="/dea/displacement",
+                       help="bags: displacement topic (Range or Float64; default /dea/displacement)")
+    ident.add_argument("--segments", default=None, metavar="YAML",
+                       help="bags not recorded by identifier_node: the experiments' time windows "
+                            "(format in dea_ros.bag.extract)")
     ident.set_defaults(func=cmd_identify)
     return {"synth": synth, "identify": ident}
 
