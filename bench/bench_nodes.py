@@ -25,6 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine_info import machine  # noqa: E402
 
+RATE = float(os.environ.get("DEA_BENCH_MODEL_RATE", "1000.0"))
+
 PUBLISHER = r"""
 import sys, time, rclpy
 from rclpy.node import Node
@@ -50,7 +52,7 @@ def bench_latency(seconds: float, env) -> dict:
 
     from dea_ros.nodes.common import SENSOR_QOS
 
-    model = subprocess.Popen([sys.executable, "-m", "dea_ros.nodes.model_node", "--ros-args", "-p", "rate_hz:=1000.0"],
+    model = subprocess.Popen([sys.executable, "-m", "dea_ros.nodes.model_node", "--ros-args", "-p", f"rate_hz:={RATE}"],
                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     source = subprocess.Popen([sys.executable, "-c", PUBLISHER, str(seconds)], env=env, stdout=subprocess.PIPE,
                               text=True)

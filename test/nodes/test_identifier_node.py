@@ -1,0 +1,160 @@
+"""identifier_node over real rclpy with a fake rig peer: pre-flight checks, abort, recording, replay, SIGKILL."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import BatteryState, Range
+from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
+
+from dea_ros.bag import BagReader, recover_bag
+from dea_ros.bag.extract import EXPERIMENT_METADATA
+from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range, make_voltage_state
+from dea_ros.nodes.identifier_node import IdentifierNode
+
+HERE = Path(__file__).parent
+
+
+class FakeRig(Node):
+    """Applies voltage_cmd instantly and 'measures' a displacement proportional to it."""
+
+    def __init__(self, context):
+        super().__init__("fake_rig", context=context)
+        self.u = 0.0
+        self.commands = []
+        self.create_subscription(Float64, "voltage_cmd", self.on_cmd, COMMAND_QOS)
+        self.v_pub = self.create_publisher(BatteryState, "voltage", SENSOR_QOS)
+        self.d_pub = self.create_publisher(Range, "displacement", SENSOR_QOS)
+        self.create_timer(0.002, self.tick)
+
+    def on_cmd(self, msg):
+        self.u = msg.data
+        self.commands.append(msg.data)
+
+    def tick(self):
+        t = self.get_clock().now().nanoseconds
+        self.v_pub.publish(make_voltage_state(self.u, t, True))
+        self.d_pub.publish(make_range(7e-4 + 1e-7 * self.u, t, "laser"))
+
+
+def make_identifier(ctx, tmp_path, **extra):
+    params = dict(protocol="quick", output_dir=str(tmp_path), run_name="run", identify=False,
+                  command_rate_hz=200.0, wait_for_rig_s=5.0)
+    params.update(extra)
+    return IdentifierNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+
+
+def test_unwritable_output_fails_before_any_voltage(ros_context, spin_until):
+    rig = FakeRig(ros_context)
+    node = make_identifier(ros_context, Path("/proc/dea_ros_cannot_write_here"))
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(rig)
+    ex.add_node(node)
+    spin_until(ex, lambda: False, timeout_s=1.0)
+    assert node.state == "error" and "no voltage was applied" in node.error
+    assert all(u == 0.0 for u in rig.commands)
+    ex.shutdown()
+    node.destroy_node()
+    rig.destroy_node()
+
+
+def test_abort_keeps_the_recording_and_commands_zero(ros_context, spin_until, tmp_path):
+    rig = FakeRig(ros_context)
+    node = make_identifier(ros_context, tmp_path)
+    peer = Node("operator", context=ros_context)
+    abort = peer.create_client(Trigger, "/identifier_node/abort")
+    ex = SingleThreadedExecutor(context=ros_context)
+    for n in (rig, node, peer):
+        ex.add_node(n)
+    assert spin_until(ex, lambda: node.state == "running", timeout_s=10.0)
+    # the staircase is under way: the 2 kV level reaches the rig
+    assert spin_until(ex, lambda: rig.commands and max(rig.commands) > 1000.0, timeout_s=10.0)
+    fut = abort.call_async(Trigger.Request())
+    assert spin_until(ex, fut.done)
+    assert fut.result().success
+    spin_until(ex, lambda: False, timeout_s=0.3)
+    assert rig.commands[-1] == 0.0
+    assert node.state == "done" and "aborted" in node.error
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    with BagReader(summary["bag"]) as bag:
+        meta = bag.metadata()[EXPERIMENT_METADATA]
+        assert meta["aborted"] == "true"
+        counts = {k: v.message_count for k, v in bag.topics().items()}
+    assert counts["/voltage_cmd"] > 100 and counts["/displacement"] > 500 and counts["/voltage"] > 500
+    ex.shutdown()
+    for n in (rig, node, peer):
+        n.destroy_node()
+
+
+def test_replay_republishes_with_the_original_timing(ros_context, spin_until, tmp_path):
+    from dea_ros.bag import BagWriter
+
+    bag_dir = tmp_path / "replay_bag"
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(bag_dir) as bag:
+        bag.add_topic("/replay_test/cmd", "std_msgs/msg/Float64")
+        for k in range(100):
+            bag.write("/replay_test/cmd", {"data": float(k)}, t0 + k * 10_000_000)  # 100 Hz for 1 s
+    peer = Node("listener", context=ros_context)
+    got = []
+    peer.create_subscription(Float64, "/replay_test/cmd", lambda m: got.append((time.monotonic(), m.data)), 10)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(peer)
+    proc = subprocess.Popen([sys.executable, "-m", "dea_ros.cli", "replay", str(bag_dir), "--rate", "2"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert spin_until(ex, lambda: len(got) >= 100, timeout_s=20.0)
+        proc.wait(timeout=10)
+    finally:
+        proc.kill()
+    values = [v for _, v in got]
+    assert values == [float(k) for k in range(100)]
+    duration = got[-1][0] - got[0][0]
+    assert 0.4 < duration < 0.7  # 0.99 s recorded, replayed at rate 2
+    ex.shutdown()
+    peer.destroy_node()
+
+
+def test_sigkill_of_the_recorder_loses_at_most_a_second(tmp_path):
+    """identifier_node (own process) records a fake rig; SIGKILL; the bag is recovered and readable."""
+    env = dict(os.environ)
+    rig = subprocess.Popen([sys.executable, "-c", (
+        "import rclpy\nfrom rclpy.context import Context\nimport sys\nsys.path.insert(0, %r)\n"
+        "from test_identifier_node import FakeRig\nrclpy.init()\nn = FakeRig(None)\nrclpy.spin(n)\n") % str(HERE)],
+        env=env)
+    ident = subprocess.Popen([sys.executable, "-m", "dea_ros.nodes.identifier_node", "--ros-args",
+                              "-p", "protocol:=quick", "-p", f"output_dir:={tmp_path}", "-p", "run_name:=killed",
+                              "-p", "identify:=false", "-p", "command_rate_hz:=200.0"], env=env,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        t_end = time.monotonic() + 30
+        started = False
+        for line in ident.stdout:
+            if "protocol started" in line:
+                started = True
+                break
+            if time.monotonic() > t_end:
+                break
+        assert started
+        time.sleep(3.0)
+        t_kill = time.time()
+        ident.send_signal(signal.SIGKILL)
+        ident.wait(timeout=10)
+    finally:
+        ident.kill()
+        rig.kill()
+    bag_dir = tmp_path / "killed" / "bag"
+    recover_bag(bag_dir)
+    with BagReader(bag_dir) as bag:
+        last = max(m.log_time_ns for m in bag.raw_messages(["/displacement"]))
+        assert EXPERIMENT_METADATA in bag.metadata()
+    assert t_kill - last * 1e-9 < 1.0 + 0.5  # flushed every 0.5 s (+ scheduling slack)
