@@ -41,13 +41,12 @@ class StaticEquilibrium:
     mass_kg: float
     displacement_m: np.ndarray
     stiffness_N_per_m: np.ndarray  # static, with eps1 relaxed; > 0 means stable
+    electrode_width_m: float       # l0 of the membrane (for the state's eps1 = lambda_r(d) - 1)
 
     @property
     def state(self) -> np.ndarray:
         """Model state [d, eps1, d'] of shape (3, ...) at rest (eps1 relaxed)."""
-        return static_state(self._l0, self.displacement_m)
-
-    _l0: float = 0.0
+        return static_state(self.electrode_width_m, self.displacement_m)
 
 
 def static_state(electrode_width_m: float, displacement_m):
@@ -151,5 +150,5 @@ def static_equilibrium(
         mass_kg=m,
         displacement_m=d.reshape(out_shape) if out_shape else float(d[0]),
         stiffness_N_per_m=stiffness.reshape(out_shape) if out_shape else float(stiffness[0]),
-        _l0=l0,
+        electrode_width_m=l0,
     )
