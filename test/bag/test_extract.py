@@ -28,7 +28,9 @@ def recorded(tmp_path_factory):
     seg_idx = np.searchsorted([s.end_s for s in segs], tv, side="right").clip(0, len(segs) - 1)
     uv = np.array([segs[k].voltage_at(t) for k, t in zip(seg_idx, tv)])
     td = np.arange(0.0, duration, 1e-3)
-    resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="zoh"), duration, t_eval=td)
+    # linear hold: a ZOH input restarts the adaptive integrator at every change (32k times); the
+    # difference is far below the tolerances checked here
+    resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="linear"), duration, t_eval=td)
     rng = np.random.default_rng(3)
     d = resp.displacement_m + rng.normal(0, 1e-6, td.size)
     path = tmp_path_factory.mktemp("bags") / "run"
@@ -57,19 +59,23 @@ def test_experiments_are_cut_from_the_bag(recorded):
     exp = experiments_from_bag(path)
     a2 = preset("A2")
     static = exp.static[0]
-    np.testing.assert_allclose(static.voltage_V, [0, 2000, 2500], atol=1e-3)
+    levels = [s.info["voltage_V"] for s in segs if s.kind == "static"]
+    np.testing.assert_allclose(static.voltage_V, levels, atol=1e-3)
     # the holds are short (2.5 s) against the 0.93 s creep: within a few um of the equilibrium
     eq = static_equilibrium(a2, static.voltage_V).displacement_m
     assert np.max(np.abs(static.displacement_m - eq)) < 5e-6
     step = exp.steps[0]
+    step_seg = next(s for s in segs if s.kind == "step")
     assert step.final_V == pytest.approx(2200) and step.initial_V == 0
-    assert step.n_samples == pytest.approx(3900, abs=5)
+    assert step.n_samples == pytest.approx((step_seg.end_s - step_seg.start_s) * 1000, abs=5)
     sines = exp.sines[0]
-    assert list(sines.frequency_Hz) == [3.0, 8.5, 9.0, 9.5, 10.0, 11.0]
+    freqs = [s.info["frequency_Hz"] for s in segs if s.kind == "sine"]
+    assert list(sines.frequency_Hz) == freqs
     d0 = static.displacement_m[0]
-    rms_3hz = solve_native(a2, SinePeriodic(2500.0, 3.0), 10).displacement_rms(static_equilibrium(a2, 0).displacement_m)
-    assert sines.d_rms_m[0] == pytest.approx(rms_3hz, rel=0.03)
-    assert sines.series[0].frequency_Hz == 3.0 and d0 > 0
+    rms = solve_native(a2, SinePeriodic(2500.0, freqs[0]), 10).displacement_rms(
+        static_equilibrium(a2, 0).displacement_m)
+    assert sines.d_rms_m[0] == pytest.approx(rms, rel=0.03)
+    assert sines.series[0].frequency_Hz == freqs[0] and d0 > 0
     assert exp.mass_kg == 0.003 and exp.geometry["thickness_m"] == a2.thickness_m
 
 
