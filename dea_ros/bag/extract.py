@@ -137,8 +137,13 @@ def _schedule(signals: BagSignals, segments_file, path):
     return info, t0, segments
 
 
-def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=None, membrane=None):
-    """An :class:`dea_ros.identify.experiments.ExperimentSet` cut from a bag."""
+def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=None, membrane=None,
+                         measured_inputs: bool = True):
+    """An :class:`dea_ros.identify.experiments.ExperimentSet` cut from a bag.
+
+    ``measured_inputs``: the sine experiments carry the applied voltage of each window as a
+    periodic input (:meth:`SineSeries.measured_input`), used by the fit instead of the nominal sine.
+    """
     from ..identify.experiments import (
         ExperimentError,
         ExperimentSet,
@@ -217,8 +222,11 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         freqs = np.array([s.frequency_Hz for s, _ in series])
         amps = np.array([a for _, a in series])
         rms = np.array([s.displacement_rms(rest_d0) for s, _ in series])
+        # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
+        # not the nominal sine: fit and evaluate with the measured waveforms
+        inputs = tuple(s.measured_input() for s, _ in series) if measured_inputs else ()
         sines = [SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, rest_d0),
-                          series=tuple(s for s, _ in series), source=f"{path} sine segments")]
+                          series=tuple(s for s, _ in series), source=f"{path} sine segments", inputs=inputs)]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:
         return ExperimentSet(

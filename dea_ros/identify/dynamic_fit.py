@@ -124,6 +124,7 @@ class FrequencyPoint:
     mass_kg: float
     source: str
     measured_std_m: float | None = None
+    periodic_input: object = None  # the applied waveform (SineData.inputs); None: the nominal sine
 
 
 def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
@@ -135,7 +136,8 @@ def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
     those (each must be in the data).
     """
     rows = [FrequencyPoint(float(f), float(a), float(r), s.mass_kg, s.source,
-                           None if s.d_rms_std_m is None else float(s.d_rms_std_m[k]))
+                           None if s.d_rms_std_m is None else float(s.d_rms_std_m[k]),
+                           s.inputs[k] if s.inputs else None)
             for s in sines
             for k, (f, a, r) in enumerate(zip(s.frequency_Hz, s.amplitude_V, s.d_rms_m))]
     if not rows:
@@ -310,7 +312,7 @@ class DynamicObjective:
         return res, rows, sims
 
     def _hbm_solve(self, params, k: int, point: FrequencyPoint) -> PeriodicSolution:
-        sine = SinePeriodic(point.amplitude_V, point.frequency_Hz)
+        sine = point.periodic_input or SinePeriodic(point.amplitude_V, point.frequency_Hz)
         guess = self._hb_guess.get(k)
         try:
             sol = solve_native(params, sine, self.n_harmonics, x_guess=guess, stability=False)
@@ -348,7 +350,7 @@ class DynamicObjective:
         return rms, grad
 
     def _integration_rms(self, params, point: FrequencyPoint) -> float:
-        sine = SinePeriodic(point.amplitude_V, point.frequency_Hz)
+        sine = point.periodic_input or SinePeriodic(point.amplitude_V, point.frequency_Hz)
         p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
         with np.errstate(over="ignore", invalid="ignore"):  # rejected trial steps of DOP853
             sol = integrate_to_steady_state(p, sine, **self.integration_options)

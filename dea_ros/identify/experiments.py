@@ -437,6 +437,26 @@ class SineSeries:
         d = self.displacement_m[self.whole_periods()]
         return float(np.sqrt(np.mean((d - d0_m) ** 2)))
 
+    def measured_input(self, harmonics: int = 24, samples: int = 256):
+        """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
+
+        The model sees u^2 only (eq. 6): u^2 over the whole periods of the record is projected
+        on harmonics 0..``harmonics`` of the excitation frequency (least squares: the period
+        average of what the membrane received, with command jitter, zero-order hold and slew
+        limiting included), then u = sqrt(u^2) is sampled at ``samples`` phases.
+        """
+        from ..solvers.inputs import SampledPeriodic
+
+        keep = self.whole_periods()
+        theta = 2.0 * np.pi * self.frequency_Hz * (self.time_s[keep] - self.time_s[0])
+        u2 = self.voltage_V[keep] ** 2
+        k = np.arange(1, harmonics + 1)
+        basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
+        coeffs, *_ = np.linalg.lstsq(basis, u2, rcond=None)
+        phase = 2.0 * np.pi * np.arange(samples) / samples
+        grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
+        return SampledPeriodic(np.sqrt(np.clip(grid @ coeffs, 0.0, None)), self.frequency_Hz)
+
 
 @dataclass(frozen=True)
 class SineData:
@@ -449,6 +469,9 @@ class SineData:
     d0_m: np.ndarray | None = None
     series: tuple = ()
     source: str = "sine data"
+    #: optional periodic inputs (one per frequency, e.g. ``SineSeries.measured_input()``): the fit
+    #: and the evaluation then use the applied waveform instead of the nominal sine
+    inputs: tuple = ()
     d_rms_std_m: np.ndarray | None = None
 
     def __post_init__(self):
@@ -493,6 +516,9 @@ class SineData:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "mass_kg", float(self.mass_kg))
         object.__setattr__(self, "series", tuple(self.series))
+        object.__setattr__(self, "inputs", tuple(self.inputs))
+        if self.inputs and len(self.inputs) != n:
+            raise ExperimentError(f"{src}: {len(self.inputs)} inputs for {n} frequencies")
 
     @property
     def n_frequencies(self) -> int:

@@ -226,6 +226,14 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
                     "amplitude_V": float(a), "measured_peak_Hz": f_meas, "simulated_peak_Hz": f_sim,
                     "error_percent": 100.0 * abs(f_sim - f_meas) / f_meas,
                 })
+        if sine.inputs:  # the applied waveforms were measured: compare the model under them
+            d0_model = float(static_equilibrium(p, 0.0).displacement_m)
+            for k, inp in enumerate(sine.inputs):
+                try:
+                    sol = solve_native(p, inp, n_harmonics, stability=True)
+                except HarmonicBalanceError:
+                    continue
+                model_at_data[k], stable_at_data[k] = sol.displacement_rms(d0_model), bool(sol.stable)
         err = (model_at_data - sine.d_rms_m) * 1e6
         ok = np.isfinite(err)
         entry["rms_error_um"] = float(np.sqrt(np.mean(err[ok] ** 2))) if np.any(ok) else None
