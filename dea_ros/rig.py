@@ -218,9 +218,12 @@ def register(subparsers) -> None:
                            "config/), or 'same' for --membrane (default: rig/mock_membrane.yaml, A2 with "
                            "different material parameters)")
     demo.add_argument("--protocol", default="paper", help="protocol in config/protocols (paper, quick) or a YAML")
-    demo.add_argument("--speed", type=float, default=2.0, help="simulated seconds per wall-clock second")
-    demo.add_argument("--rate", type=float, default=500.0, help="command/amplifier/clock rate, Hz (simulated)")
-    demo.add_argument("--laser-rate", type=float, default=1000.0, help="displacement sample rate, Hz (simulated)")
+    demo.add_argument("--speed", type=float, default=3.0,
+                      help="upper bound of simulated seconds per wall-clock second (lockstep may be slower)")
+    demo.add_argument("--rate", type=float, default=250.0,
+                      help="command/amplifier/clock rate, Hz (simulated; sines are fitted against the applied "
+                           "waveform, so its zero-order hold does not bias the fit)")
+    demo.add_argument("--laser-rate", type=float, default=500.0, help="displacement sample rate, Hz (simulated)")
     demo.add_argument("--noise", type=float, default=1e-6, help="laser noise sigma, m")
     demo.add_argument("--out", default="runs", help="folder of the runs")
     demo.add_argument("--run-name", help="folder name of this run (default: demo_<date>)")

@@ -21,7 +21,7 @@ def demo_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(60 + os.getpid() % 40)
-    cmd = [sys.executable, "-m", "dea_ros.cli", "rig", "demo", "--protocol", "test", "--speed", "2",
+    cmd = [sys.executable, "-m", "dea_ros.cli", "rig", "demo", "--protocol", "test",
            "--out", str(out), "--run-name", "e2e", "--json"]
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -36,9 +36,12 @@ def test_demo_writes_bag_parameters_and_report(demo_run):
         assert Path(summary[key]).is_file()
     assert len(summary["figures"]) >= 3 and all(Path(f).stat().st_size > 10_000 for f in summary["figures"])
     counts = summary["messages"]
-    # 55 s of protocol: laser at 1 kHz, amplifier, commands and predictions at 500 Hz (simulated time)
-    assert counts["/dea/displacement"] > 50_000
-    assert counts["/dea/voltage"] > 25_000 and counts["/dea/voltage_cmd"] > 25_000
+    from dea_ros.protocols import load_protocol
+
+    duration = load_protocol("test").duration_s()
+    # demo defaults: laser at 500 Hz, amplifier and commands at 250 Hz (simulated time), no gaps
+    assert counts["/dea/displacement"] > 0.98 * duration * 500
+    assert counts["/dea/voltage"] > 0.98 * duration * 250 and counts["/dea/voltage_cmd"] > 0.98 * duration * 250
 
 
 def test_bag_opens_in_the_independent_reader(demo_run):
@@ -55,7 +58,7 @@ def test_bag_opens_in_the_independent_reader(demo_run):
             msg = reader.deserialize(raw, c.msgtype)
             assert 0.0 <= msg.voltage <= 2500.0 + 1e-3
             n += 1
-        assert n > 25_000
+        assert n > 10_000
 
 
 def test_identified_model_reproduces_the_mock(demo_run):

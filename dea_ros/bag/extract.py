@@ -168,8 +168,12 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
     if td.size < 10:
         raise BagError(f"{path}: only {td.size} displacement samples")
 
+    command_lead_s = 2.0 / float(info.get("command_rate_hz", 500.0))
+
     def window(a, b):
-        k = (td >= a) & (td < b)
+        """Samples in [a, b - guard): identifier_node commands one period ahead, so the next
+        segment's voltage can appear just before the boundary."""
+        k = (td >= a) & (td < b - max(0.01, command_lead_s))
         return td[k], dd[k]
 
     def voltage_at(t):
