@@ -450,12 +450,22 @@ class SineSeries:
         keep = self.whole_periods()
         theta = 2.0 * np.pi * self.frequency_Hz * (self.time_s[keep] - self.time_s[0])
         u2 = self.voltage_V[keep] ** 2
+        # only harmonics below the Nyquist frequency of the samples (above it the projection aliases)
+        fs = 1.0 / float(np.median(np.diff(self.time_s)))
+        harmonics = max(2, min(int(harmonics), int(0.45 * fs / self.frequency_Hz)))
         k = np.arange(1, harmonics + 1)
         basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
         coeffs, *_ = np.linalg.lstsq(basis, u2, rcond=None)
         phase = 2.0 * np.pi * np.arange(samples) / samples
         grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
-        return SampledPeriodic(np.sqrt(np.clip(grid @ coeffs, 0.0, None)), self.frequency_Hz)
+        u = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
+        peak = float(np.max(np.abs(self.voltage_V[keep])))
+        if np.max(u) > 1.05 * peak + 1.0:
+            raise ExperimentError(
+                f"{self.source}: the applied voltage at {self.frequency_Hz:g} Hz cannot be represented with "
+                f"{harmonics} harmonics (projection peaks at {np.max(u):.0f} V, data at {peak:.0f} V); "
+                "record more samples per period")
+        return SampledPeriodic(u, self.frequency_Hz)
 
 
 @dataclass(frozen=True)

@@ -36,3 +36,10 @@ def test_inputs_reach_the_fit_points():
     assert select_fit_frequencies([plain], "all")[0].periodic_input is None
     with pytest.raises(ExperimentError, match="inputs"):
         SineData([5.0, 6.0], [2500.0, 2500.0], [1e-4, 1e-4], 0.003, inputs=(inp,))
+
+
+def test_projection_stays_below_nyquist():
+    """20 Hz sampled at 500 Hz: 24 harmonics would alias (45 kV 'peaks' seen on a rig bag)."""
+    s = series(20.0, 2500.0, fs=500.0, periods=30)
+    u = s.measured_input().voltage_V
+    assert u.max() < 2500.0 * 1.02 and u.min() >= 0.0
