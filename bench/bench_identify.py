@@ -27,7 +27,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import scipy
 
 from dea_ros.identify.dynamic_fit import DynamicObjective, fit_dynamic, select_fit_frequencies
 from dea_ros.identify.experiments import load_experiment_set
@@ -35,8 +34,6 @@ from dea_ros.identify.pipeline import identify
 from dea_ros.identify.report import write_report
 from dea_ros.identify.static_fit import fit_static
 from dea_ros.identify.synth import synthesize
-import sys
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine_info import machine_info  # noqa: E402
 

@@ -187,7 +187,7 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         return uv[idx]
 
     static_m, static_u, static_d = [], [], []
-    steps, sine_rows, series = [], [], []
+    steps, series = [], []
     rest_d0 = None
     for k, seg in enumerate(segments):
         kind = seg.get("kind")

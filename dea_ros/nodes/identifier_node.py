@@ -33,7 +33,7 @@ from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
-from ..bag import BagError, BagWriter, QosProfile, check_writable, command_qos, sensor_data_qos
+from ..bag import BagError, BagWriter, QosProfile, check_writable
 from ..bag.extract import EXPERIMENT_METADATA
 from ..protocols import ProtocolError, load_protocol
 from .common import (
