@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
@@ -45,6 +45,7 @@ from .common import (
     declare_int,
     declare_str,
     make_voltage_state,
+    publish_diagnostic,
 )
 
 __all__ = ["AmplifierNode", "main"]
@@ -211,23 +212,16 @@ class AmplifierNode(LifecycleNode):
             self.voltage_pub.publish(make_voltage_state(u, t, self.controller.is_activated))
 
     def publish_diagnostics(self) -> None:
-        status = DiagnosticStatus()
-        status.name = f"{self.get_name()}: high voltage"
-        status.hardware_id = str(self.p("backend"))
         if self.controller is None:
-            status.level = DiagnosticStatus.OK
-            status.message = "unconfigured (0 V)"
+            level, message, values = DiagnosticStatus.OK, "unconfigured (0 V)", []
         else:
-            diag = self.controller.diagnostics(self.now_s())
-            status.values = [KeyValue(key=k, value=v) for k, v in diag.key_values()]
+            values = self.controller.diagnostics(self.now_s()).key_values()
             rejected = sum(self.controller.rejected_counts.values())
-            status.level = DiagnosticStatus.ERROR if self.backend_fault else (
+            level = DiagnosticStatus.ERROR if self.backend_fault else (
                 DiagnosticStatus.WARN if rejected or self.controller.watchdog_trip_count else DiagnosticStatus.OK)
-            status.message = self.backend_fault or f"{self.controller.state.value}, {rejected} rejected commands"
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [status]
-        self.diag_pub.publish(arr)
+            message = self.backend_fault or f"{self.controller.state.value}, {rejected} rejected commands"
+        publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: high voltage", str(self.p("backend")),
+                           level, message, values)
 
 
 def main(args=None) -> None:

@@ -31,13 +31,14 @@ from rclpy.qos import (
     QoSProfile,
     ReliabilityPolicy,
 )
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from sensor_msgs.msg import BatteryState, Range
 
 __all__ = [
     "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
-    "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "s_to_stamp",
+    "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "s_to_stamp", "publish_diagnostic",
 ]
 
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
@@ -141,3 +142,17 @@ def make_voltage_state(voltage_V: float, t_s: float, output_enabled: bool, frame
     msg.power_supply_technology = BatteryState.POWER_SUPPLY_TECHNOLOGY_UNKNOWN
     msg.present = bool(output_enabled)
     return msg
+
+
+def publish_diagnostic(node: Node, publisher, name: str, hardware_id: str, level, message: str, values) -> None:
+    """Publish one DiagnosticStatus (``values``: (key, value) pairs) on /diagnostics, stamped now."""
+    status = DiagnosticStatus()
+    status.name = name
+    status.hardware_id = hardware_id
+    status.level = level
+    status.message = message
+    status.values = [KeyValue(key=str(k), value=str(v)) for k, v in values]
+    arr = DiagnosticArray()
+    arr.header.stamp = node.get_clock().now().to_msg()
+    arr.status = [status]
+    publisher.publish(arr)

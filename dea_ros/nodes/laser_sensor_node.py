@@ -18,13 +18,21 @@ from __future__ import annotations
 
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from sensor_msgs.msg import Range
 from std_srvs.srv import Trigger
 
 from ..hardware.laser import SensorDisconnected, SensorError
-from .common import SENSOR_QOS, TOPIC_DISPLACEMENT, declare_float, declare_int, declare_str, make_range
+from .common import (
+    SENSOR_QOS,
+    TOPIC_DISPLACEMENT,
+    declare_float,
+    declare_int,
+    declare_str,
+    make_range,
+    publish_diagnostic,
+)
 
 __all__ = ["LaserSensorNode", "main"]
 
@@ -132,23 +140,17 @@ class LaserSensorNode(Node):
         return resp
 
     def publish_diagnostics(self) -> None:
-        status = DiagnosticStatus()
-        status.name = f"{self.get_name()}: ILD1320"
-        status.hardware_id = self.port
-        status.level = DiagnosticStatus.OK if self.connected else DiagnosticStatus.ERROR
-        status.message = "streaming" if self.connected else f"disconnected: {self.last_error}"
-        values = [("published", str(self.published)), ("disconnects", str(self.disconnects))]
-        values += [(f"errors_{k}", str(v)) for k, v in sorted(self.error_counts.items())]
+        values = [("published", self.published), ("disconnects", self.disconnects)]
+        values += [(f"errors_{k}", v) for k, v in sorted(self.error_counts.items())]
         decoder = getattr(self.sensor, "decoder", None)
         if decoder is not None:
-            for attr in ("invalid_bytes", "frames_dropped", "resyncs"):
-                if hasattr(decoder, attr):
-                    values.append((attr, str(getattr(decoder, attr))))
-        status.values = [KeyValue(key=k, value=v) for k, v in values]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [status]
-        self.diag_pub.publish(arr)
+            values += [(attr, getattr(decoder, attr)) for attr in ("invalid_bytes", "frames_dropped", "resyncs")
+                       if hasattr(decoder, attr)]
+        publish_diagnostic(
+            self, self.diag_pub, f"{self.get_name()}: ILD1320", self.port,
+            DiagnosticStatus.OK if self.connected else DiagnosticStatus.ERROR,
+            "streaming" if self.connected else f"disconnected: {self.last_error}", values,
+        )
 
     def shutdown_safely(self) -> None:
         try:

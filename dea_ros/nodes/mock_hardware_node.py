@@ -29,7 +29,7 @@ import threading
 import time
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
@@ -47,6 +47,7 @@ from .common import (
     declare_int,
     declare_str,
     make_range,
+    publish_diagnostic,
 )
 
 __all__ = ["MockHardwareNode", "RigSimulator", "main"]
@@ -304,26 +305,17 @@ class MockHardwareNode(Node):
         self.clock_pub.publish(msg)
 
     def publish_diagnostics(self) -> None:
-        status = DiagnosticStatus()
-        status.name = f"{self.get_name()}: simulated rig"
-        status.hardware_id = self.sim.params.name
-        status.level = DiagnosticStatus.OK
-        status.message = "running"
         lag = (time.monotonic() - self.wall_t0) * self.real_time_factor - (self.sim.t_s - self.sim_t0) \
             if self.publish_clock else 0.0
-        status.values = [
-            KeyValue(key="voltage_V", value=f"{self.sim.voltage_V:.1f}"),
-            KeyValue(key="displacement_m", value=f"{self.sim.stepper.displacement_m:.9f}"),
-            KeyValue(key="physics_steps", value=str(self.sim.steps)),
-            KeyValue(key="samples_published", value=str(self.published)),
-            KeyValue(key="amplifier_datagrams", value=str(self.receiver.received_count)),
-            KeyValue(key="sim_lag_s", value=f"{lag:.3f}"),
-            KeyValue(key="lockstep_timeouts", value=str(self.lockstep_timeouts)),
-        ]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [status]
-        self.diag_pub.publish(arr)
+        publish_diagnostic(
+            self, self.diag_pub, f"{self.get_name()}: simulated rig", self.sim.params.name,
+            DiagnosticStatus.OK, "running",
+            [("voltage_V", f"{self.sim.voltage_V:.1f}"),
+             ("displacement_m", f"{self.sim.stepper.displacement_m:.9f}"),
+             ("physics_steps", self.sim.steps), ("samples_published", self.published),
+             ("amplifier_datagrams", self.receiver.received_count), ("sim_lag_s", f"{lag:.3f}"),
+             ("lockstep_timeouts", self.lockstep_timeouts)],
+        )
 
     def shutdown_safely(self) -> None:
         """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent."""

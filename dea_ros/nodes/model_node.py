@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, Range
 from std_srvs.srv import Trigger
@@ -38,6 +38,7 @@ from .common import (
     declare_float,
     declare_str,
     make_range,
+    publish_diagnostic,
 )
 
 __all__ = ["ModelNode", "main"]
@@ -180,24 +181,15 @@ class ModelNode(Node):
         return resp
 
     def publish_diagnostics(self) -> None:
-        status = DiagnosticStatus()
-        status.name = f"{self.get_name()}: model"
-        status.hardware_id = self.stepper.params.name
-        status.level = DiagnosticStatus.WARN if self.late_ticks or self.resets_for_gaps else DiagnosticStatus.OK
-        status.message = "falling behind" if self.late_ticks else "ok"
-        status.values = [
-            KeyValue(key="published", value=str(self.published)),
-            KeyValue(key="late_ticks", value=str(self.late_ticks)),
-            KeyValue(key="resets_for_gaps", value=str(self.resets_for_gaps)),
-            KeyValue(key="stale_inputs", value=str(self.stale_inputs)),
-            KeyValue(key="max_compute_ms", value=f"{self.max_compute_s * 1e3:.3f}"),
-            KeyValue(key="voltage_V", value=f"{self.voltage_V:.1f}"),
-            KeyValue(key="displacement_m", value=f"{self.stepper.displacement_m:.9f}"),
-        ]
-        arr = DiagnosticArray()
-        arr.header.stamp = self.get_clock().now().to_msg()
-        arr.status = [status]
-        self.diag_pub.publish(arr)
+        publish_diagnostic(
+            self, self.diag_pub, f"{self.get_name()}: model", self.stepper.params.name,
+            DiagnosticStatus.WARN if self.late_ticks or self.resets_for_gaps else DiagnosticStatus.OK,
+            "falling behind" if self.late_ticks else "ok",
+            [("published", self.published), ("late_ticks", self.late_ticks),
+             ("resets_for_gaps", self.resets_for_gaps), ("stale_inputs", self.stale_inputs),
+             ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"), ("voltage_V", f"{self.voltage_V:.1f}"),
+             ("displacement_m", f"{self.stepper.displacement_m:.9f}")],
+        )
 
 
 def main(args=None) -> None:

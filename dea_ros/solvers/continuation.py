@@ -164,6 +164,25 @@ def _d0(params: MembraneParameters, choice: str, sol: PeriodicSolution) -> float
     raise ValueError(f"d0: 'static' (equilibrium at u = 0, the paper's eq. 21) or 'mean', got {choice!r}")
 
 
+def _sweep_point(sol: PeriodicSolution, d0_m: float, iterations: int, wall_time_s: float, segment: int,
+                 stability: bool) -> SweepPoint:
+    """A SweepPoint from a periodic solution (d_rms around d0_m, eq. 21)."""
+    mu = np.abs(sol.multipliers) if sol.multipliers is not None else np.array([np.nan])
+    return SweepPoint(
+        frequency_Hz=float(sol.frequency_Hz),
+        d_rms_m=sol.displacement_rms(d0_m),
+        mean_displacement_m=sol.mean_displacement_m,
+        peak_to_peak_m=float(np.ptp(sol.state[0])),
+        stable=bool(sol.stable) if stability else True,
+        stability=classify_stability(sol.multipliers),
+        max_multiplier=float(np.max(mu)),
+        iterations=iterations,
+        wall_time_s=wall_time_s,
+        segment=segment,
+        solution=sol,
+    )
+
+
 def frequency_sweep(
     params: MembraneParameters,
     periodic_input: PeriodicInput,
@@ -267,20 +286,7 @@ def frequency_sweep(
             sol.multipliers = floquet_multipliers(model, sol, scale=setup.scale)
         ref = d0_static if d0 == "static" else _d0(params, d0, sol)
         sol.wall_time_s = time.perf_counter() - t0
-        mu = np.abs(sol.multipliers) if sol.multipliers is not None else np.array([np.nan])
-        return SweepPoint(
-            frequency_Hz=f_exc,
-            d_rms_m=sol.displacement_rms(ref),
-            mean_displacement_m=sol.mean_displacement_m,
-            peak_to_peak_m=float(np.ptp(sol.state[0])),
-            stable=bool(sol.stable) if stability else True,
-            stability=classify_stability(sol.multipliers),
-            max_multiplier=float(np.max(mu)),
-            iterations=iters,
-            wall_time_s=sol.wall_time_s,
-            segment=segment,
-            solution=sol,
-        )
+        return _sweep_point(sol, ref, iters, sol.wall_time_s, segment, stability)
 
     points: list[SweepPoint] = []
     folds: list[Fold] = []
@@ -388,15 +394,7 @@ def sweep_independent(
             continue
         guess = sol.state if method != "integration" else None
         ref = d0_static if d0 == "static" else _d0(params, d0, sol)
-        mu = np.abs(sol.multipliers) if sol.multipliers is not None else np.array([np.nan])
-        points.append(SweepPoint(
-            frequency_Hz=float(f), d_rms_m=sol.displacement_rms(ref),
-            mean_displacement_m=sol.mean_displacement_m, peak_to_peak_m=float(np.ptp(sol.state[0])),
-            stable=bool(sol.stable) if stability else True,
-            stability=classify_stability(sol.multipliers), max_multiplier=float(np.max(mu)),
-            iterations=sol.iterations, wall_time_s=time.perf_counter() - t0, segment=0,
-            solution=sol,
-        ))
+        points.append(_sweep_point(sol, ref, sol.iterations, time.perf_counter() - t0, 0, stability))
     return SweepResult(points, [], d0_static if d0 == "static" else float("nan"), d0,
                        int(n_harmonics), method, time.perf_counter() - t_start, len(freqs))
 
