@@ -38,7 +38,7 @@ def _rclpy_qos(profiles):
 
 def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_offset_s: float = 0.0,
            publish_clock: bool = False, quiet: bool = False, max_loops: int | None = None,
-           max_gap_s: float = 10.0) -> int:
+           max_gap_s: float = 10.0, delay_s: float = 0.5) -> int:
     """Republish; returns the number of messages published."""
     import rclpy
     from rclpy.node import Node
@@ -65,7 +65,7 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
     published = 0
     loops = 0
     try:
-        time.sleep(0.5)  # discovery
+        time.sleep(max(0.0, delay_s))  # let subscribers discover the publishers first
         while True:
             start_wall = time.monotonic()
             offset_ns = int(start_offset_s * 1e9)
@@ -105,7 +105,7 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
 
 def cmd_replay(args) -> int:
     n = replay(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, start_offset_s=args.start_offset,
-               publish_clock=args.clock, max_gap_s=args.max_gap)
+               publish_clock=args.clock, max_gap_s=args.max_gap, delay_s=args.delay)
     print(f"replayed {n} messages from {args.bag}")
     return 0
 
@@ -118,6 +118,8 @@ def register(subparsers) -> None:
     p.add_argument("--topics", nargs="+", help="only these topics (default: all)")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--clock", action="store_true", help="publish the bag time on /clock (use_sim_time)")
+    p.add_argument("--delay", type=float, default=0.5, metavar="S",
+                   help="wait before the first message so that subscribers are discovered")
     p.add_argument("--max-gap", type=float, default=10.0, metavar="S",
                    help="pauses in the log longer than this are skipped, not waited out")
     p.set_defaults(func=cmd_replay)

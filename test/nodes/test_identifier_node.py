@@ -109,10 +109,11 @@ def test_replay_republishes_with_the_original_timing(ros_context, spin_until, tm
     peer.create_subscription(Float64, "/replay_test/cmd", lambda m: got.append((time.monotonic(), m.data)), 10)
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(peer)
-    proc = subprocess.Popen([sys.executable, "-m", "dea_ros.cli", "replay", str(bag_dir), "--rate", "2"],
+    proc = subprocess.Popen([sys.executable, "-m", "dea_ros.cli", "replay", str(bag_dir), "--rate", "2",
+                             "--delay", "2.0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        assert spin_until(ex, lambda: len(got) >= 100, timeout_s=20.0)
+        assert spin_until(ex, lambda: len(got) >= 100, timeout_s=30.0)
         proc.wait(timeout=10)
     finally:
         proc.kill()
