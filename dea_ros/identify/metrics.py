@@ -170,6 +170,13 @@ def parameter_statistics(
     )
 
 
+def _trapezoid(y, x) -> float:
+    """Trapezoidal rule (np.trapezoid is numpy >= 2 only; np.trapz is gone from numpy 2.4)."""
+    y = np.asarray(y, dtype=float)
+    x = np.asarray(x, dtype=float)
+    return float(np.sum(0.5 * (y[1:] + y[:-1]) * np.diff(x)))
+
+
 def step_error_indices(time_s, measured_m, simulated_m, step_time_s: float | None = None) -> dict:
     """IAE [mm s], ISE [mm^2 s] and ITAE [mm s^2] of the step-fit error (Table III).
 
@@ -181,7 +188,7 @@ def step_error_indices(time_s, measured_m, simulated_m, step_time_s: float | Non
     e_mm = (np.asarray(simulated_m, float) - np.asarray(measured_m, float)) * 1e3
     t_step = float(t[0]) if step_time_s is None else float(step_time_s)
     weight = np.clip(t - t_step, 0.0, None)
-    trap = np.trapezoid
+    trap = _trapezoid
     return {
         "IAE_mm_s": float(trap(np.abs(e_mm), t)),
         "ISE_mm2_s": float(trap(e_mm**2, t)),
