@@ -21,6 +21,18 @@ breakdown_field_V_per_m   dielectric breakdown        V/m
 gravity_m_per_s2          g (eq. 5)                   m/s^2
 vacuum_permittivity_F_per_m  eps0 (eq. 6)             F/m
 ========================  ==========================  ======================
+
+Two levels of checks:
+
+* construction (:class:`MembraneParameters` itself, also ``replace()`` inside the fits):
+  types, finite values, signs and broad SI-unit ranges;
+* plausibility (:meth:`MembraneParameters.plausibility_problems`, enforced for every
+  file and mapping read by :meth:`MembraneParameters.from_dict` / ``from_yaml`` /
+  :func:`load_parameters`): the ranges a real DEA membrane lies in
+  (:data:`PLAUSIBLE_RANGES`), so that unit slips (micrometres typed as metres,
+  MPa for Pa, a percentage for a stretch, a typo in an exponent) are refused with
+  a message naming the field and the likely slip; a file named like a paper preset
+  (LP1, A1, A2) must also have that preset's geometry (Table I) within a factor 3.
 """
 from __future__ import annotations
 
@@ -36,6 +48,8 @@ __all__ = [
     "MembraneParameters",
     "ParameterError",
     "PRESET_NAMES",
+    "PLAUSIBLE_RANGES",
+    "MAX_BREAKDOWN_FIELD_V_PER_M",
     "preset",
     "preset_path",
     "config_dir",
@@ -43,6 +57,54 @@ __all__ = [
 ]
 
 PRESET_NAMES = ("LP1", "A1", "A2")
+
+#: Highest plausible dielectric breakdown field, V/m (300 V/um). This project's limit is
+#: ``margin x breakdown field x z0`` with z0 the (prestretched) membrane thickness, so the field
+#: meant is the *nominal* one, V/z0 at breakdown. Silicones (Elastosil, the paper's 80-100 V/um)
+#: reach 80-150 V/um; acrylic VHB reaches up to ~220 V/um nominal at large equibiaxial
+#: prestretch (Kofod et al. 2003; Huang et al. 2012, APL 101:122905). The higher values quoted
+#: for VHB (412 V/um, Pelrine et al. 2000) are true fields across the film thinned by the
+#: voltage, not V/z0. Anything above 300 V/um is taken for a typo (8e8 for 8e7).
+MAX_BREAKDOWN_FIELD_V_PER_M = 3.0e8
+
+#: Plausible range of each field, (low, high, unit, hint for a value below, hint for a value above).
+#: A value outside is refused by :meth:`MembraneParameters.from_dict` as a likely unit slip.
+PLAUSIBLE_RANGES = {
+    "prestretch": (1.0, 10.0, "", "lambda_p is a stretch ratio >= 1, not a strain (19 % prestretch -> 1.19)",
+                   "lambda_p is a stretch ratio, not a percentage (19 % prestretch -> 1.19)"),
+    "thickness_m": (1e-6, 1e-3, "m", "DEA membranes are 1-1000 um thick (35 um -> 3.5e-05 m)",
+                    "DEA membranes are 1-1000 um thick; micrometres or millimetres typed as metres? "
+                    "(35 um -> 3.5e-05 m)"),
+    "plate_radius_m": (1e-4, 0.1, "m", "millimetres are 1e-3 m (4.5 mm -> 0.0045)",
+                       "millimetres typed as metres? (4.5 mm -> 0.0045)"),
+    "electrode_width_m": (1e-3, 0.5, "m", "millimetres are 1e-3 m (17 mm -> 0.017)",
+                          "millimetres typed as metres? (17 mm -> 0.017)"),
+    "mass_kg": (0.0, 1.0, "kg", "", "grams typed as kilograms? (3 g -> 0.003)"),
+    "relative_permittivity": (1.0, 100.0, "", "eps_r is dimensionless and >= 1 (about 2-10 for elastomers)",
+                              "eps_r is dimensionless, about 2-10 for elastomers (F/m given? eps_r = eps / eps0)"),
+    "k1_Pa": (1e3, 1e11, "Pa", "given in MPa or kPa? (40.25 MPa -> 4.025e7 Pa)", "given in mPa or kPa x 1e6?"),
+    "eta1_Pa_s": (1e1, 1e13, "Pa s", "given in MPa s? (37.58 MPa s -> 3.758e7 Pa s)", "a typo in the exponent?"),
+    "eta2_Pa_s": (1e-1, 1e9, "Pa s", "given in kPa s or MPa s? (35.11 kPa s -> 35110 Pa s); 0 is allowed",
+                  "a typo in the exponent?"),
+    "breakdown_field_V_per_m": (1e6, MAX_BREAKDOWN_FIELD_V_PER_M, "V/m",
+                                "given in V/um or kV/mm? (100 V/um -> 1e8 V/m)",
+                                "no elastomer reaches this nominal field (silicone 80-150 V/um, "
+                                "prestretched VHB up to ~220 V/um); a typo in the exponent? (80 V/um -> 8e7)"),
+    "gravity_m_per_s2": (0.0, 20.0, "m/s^2", "", "cm/s^2 given? (9.81 m/s^2)"),
+    "vacuum_permittivity_F_per_m": (8.8e-12, 8.9e-12, "F/m", "eps0 = 8.854e-12 F/m", "eps0 = 8.854e-12 F/m"),
+}
+#: Ogden coefficients (beta_Pa, gamma_Pa): at most this large in magnitude, Pa.
+_OGDEN_MAX_PA = 1e9
+#: ... and when any is non-zero, the largest at least this large (else: given in MPa?), Pa.
+_OGDEN_MIN_PA = 10.0
+#: Geometry of the paper's membranes (Table I): a file named like a preset must match it.
+_PRESET_GEOMETRY = {
+    "LP1": {"prestretch": 1.15, "thickness_m": 38e-6, "plate_radius_m": 4.5e-3, "electrode_width_m": 14e-3},
+    "A1": {"prestretch": 1.36, "thickness_m": 27e-6, "plate_radius_m": 4.5e-3, "electrode_width_m": 17e-3},
+    "A2": {"prestretch": 1.19, "thickness_m": 35e-6, "plate_radius_m": 4.5e-3, "electrode_width_m": 17e-3},
+}
+#: A preset-named file whose geometry differs by more than this factor is taken for a slip.
+_PRESET_GEOMETRY_FACTOR = 3.0
 
 
 class ParameterError(ValueError):
@@ -142,6 +204,56 @@ class MembraneParameters:
                     f"field '{key}': {value} is outside [{low}, {high}]; SI units expected ({hint})"
                 )
 
+    # ------------------------------------------------------------- plausibility
+    def plausibility_problems(self) -> list[str]:
+        """Every field outside the range a real DEA membrane lies in, as messages naming the
+        field, the plausible range and the likely slip (empty when plausible)."""
+        problems: list[str] = []
+        for key, (low, high, unit, hint_low, hint_high) in PLAUSIBLE_RANGES.items():
+            value = getattr(self, key)
+            if key == "eta2_Pa_s" and value == 0.0:
+                continue
+            if low <= value <= high:
+                continue
+            hint = hint_low if value < low else hint_high
+            unit_text = f" {unit}" if unit else ""
+            problems.append(
+                f"field '{key}': {value:g}{unit_text} is outside the plausible range "
+                f"[{low:g}, {high:g}]{unit_text}" + (f"; {hint}" if hint else "")
+            )
+        for key in ("beta_Pa", "gamma_Pa"):
+            values = getattr(self, key)
+            largest = max(abs(v) for v in values)
+            if largest > _OGDEN_MAX_PA:
+                problems.append(
+                    f"field '{key}': |{key}| up to {largest:g} Pa is above {_OGDEN_MAX_PA:g} Pa; "
+                    "a typo in the exponent?"
+                )
+            elif 0.0 < largest < _OGDEN_MIN_PA:
+                problems.append(
+                    f"field '{key}': the largest coefficient is {largest:g} Pa, below {_OGDEN_MIN_PA:g} Pa; "
+                    "given in MPa or kPa? (0.343 MPa -> 343000 Pa)"
+                )
+        reference = _PRESET_GEOMETRY.get(self.name.strip().upper())
+        if reference is not None:
+            for key, expected in reference.items():
+                value = getattr(self, key)
+                ratio = value / expected
+                if not (1.0 / _PRESET_GEOMETRY_FACTOR <= ratio <= _PRESET_GEOMETRY_FACTOR):
+                    problems.append(
+                        f"field '{key}': {value:g} is {ratio:.3g} x the value {expected:g} of the paper's "
+                        f"membrane {self.name.strip().upper()} (Table I) this file is named after; a unit or "
+                        "exponent slip? (give a different membrane another name)"
+                    )
+        return problems
+
+    def check_plausible(self, source: str = "parameters") -> "MembraneParameters":
+        """Raise :class:`ParameterError` listing every implausible field; return self otherwise."""
+        problems = self.plausibility_problems()
+        if problems:
+            raise ParameterError(f"{source}: " + "; ".join(problems))
+        return self
+
     # ------------------------------------------------------------- derived
     @property
     def c1bar_m(self) -> float:
@@ -168,9 +280,11 @@ class MembraneParameters:
         return self.breakdown_field_V_per_m * self.thickness_m
 
     def max_safe_voltage_V(self, margin: float = 0.9) -> float:
-        """Breakdown voltage times a safety margin in (0, 1], V."""
-        if not (0.0 < margin <= 1.0):
-            raise ParameterError(f"margin must be in (0, 1], got {margin}")
+        """Breakdown voltage times a safety margin in (0, 1) (strictly below 1), V."""
+        if not (0.0 < margin < 1.0):
+            raise ParameterError(
+                f"margin must be in (0, 1), strictly below 1 (no headroom at 1: the membrane thins "
+                f"under voltage and the breakdown field scatters); got {margin}")
         return margin * self.breakdown_voltage_V()
 
     @staticmethod
@@ -197,8 +311,14 @@ class MembraneParameters:
         return out
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], source: str = "parameters") -> "MembraneParameters":
-        """Build from a mapping; unknown or missing keys raise :class:`ParameterError`."""
+    def from_dict(cls, data: Mapping[str, Any], source: str = "parameters",
+                  require: tuple[str, ...] = ()) -> "MembraneParameters":
+        """Build from a mapping; unknown or missing keys raise :class:`ParameterError`.
+
+        The result must be plausible (:meth:`plausibility_problems`). ``require`` names
+        fields that have a default but must be given explicitly (e.g. the amplifier needs
+        ``breakdown_field_V_per_m`` stated, never defaulted).
+        """
         if not isinstance(data, Mapping):
             raise ParameterError(
                 f"{source}: expected a mapping of field: value, got {type(data).__name__}"
@@ -218,10 +338,17 @@ class MembraneParameters:
             raise ParameterError(
                 f"{source}: missing field(s) {missing}; every membrane file needs {required}"
             )
+        missing = [k for k in require if k not in data]
+        if missing:
+            hint = (" (the amplifier derives its voltage limit from it: state the film's breakdown "
+                    "field, e.g. 1.0e8 for 100 V/um; it is never defaulted)"
+                    if "breakdown_field_V_per_m" in missing else "")
+            raise ParameterError(f"{source}: missing field(s) {missing}, required here{hint}")
         try:
-            return cls(**dict(data))
+            params = cls(**dict(data))
         except ParameterError as exc:
             raise ParameterError(f"{source}: {exc}") from None
+        return params.check_plausible(source)
 
     def to_yaml(self, path: str | Path | None = None, header: str | None = None) -> str:
         """Write YAML (SI units, documented in a header comment); return the text."""
@@ -237,8 +364,8 @@ class MembraneParameters:
         return text
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> "MembraneParameters":
-        """Load and validate a parameters YAML file.
+    def from_yaml(cls, path: str | Path, require: tuple[str, ...] = ()) -> "MembraneParameters":
+        """Load and validate a parameters YAML file (``require``: see :meth:`from_dict`).
 
         The file may hold the fields at the top level or under a ``membrane:``
         key (so a params file can carry other sections too).
@@ -254,7 +381,7 @@ class MembraneParameters:
             raise ParameterError(f"{path}: not valid YAML ({exc})") from None
         if isinstance(data, Mapping) and "membrane" in data and isinstance(data["membrane"], Mapping):
             data = data["membrane"]
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(data, source=str(path), require=require)
 
 
 def config_dir() -> Path:
@@ -289,17 +416,18 @@ def preset_path(name: str) -> Path:
     return config_dir() / "membranes" / f"{key}.yaml"
 
 
-def preset(name: str) -> MembraneParameters:
+def preset(name: str, require: tuple[str, ...] = ()) -> MembraneParameters:
     """The paper's membrane LP1, A1 or A2 (Tables I-II, mass 3 g)."""
-    return MembraneParameters.from_yaml(preset_path(name))
+    return MembraneParameters.from_yaml(preset_path(name), require=require)
 
 
-def load_parameters(name_or_path: str | Path) -> MembraneParameters:
-    """A preset name (LP1, A1, A2) or a path to a parameters YAML."""
+def load_parameters(name_or_path: str | Path, require: tuple[str, ...] = ()) -> MembraneParameters:
+    """A preset name (LP1, A1, A2) or a path to a parameters YAML (``require``: fields that
+    must be stated in the file even though they have a default, see :meth:`MembraneParameters.from_dict`)."""
     text = str(name_or_path)
     if Path(text).is_file():
-        return MembraneParameters.from_yaml(text)
+        return MembraneParameters.from_yaml(text, require=require)
     looks_like_path = any(c in text for c in "/\\") or text.endswith((".yaml", ".yml"))
     if not looks_like_path:
-        return preset(text)
-    return MembraneParameters.from_yaml(text)
+        return preset(text, require=require)
+    return MembraneParameters.from_yaml(text, require=require)
