@@ -101,7 +101,7 @@ def _file(tmp_path, **changes):
     "change, message",
     [
         ({"thickness_m": 2.7e-4}, r"thickness_m.*10 x the value 2.7e-05 of the paper's membrane A1"),  # x10 slip
-        ({"name": "mine", "thickness_m": 27e-3}, r"thickness_m.*1-1000 um.*micrometres or millimetres"),
+        ({"name": "mine", "thickness_m": 2.7e-3}, r"thickness_m.*1-1000 um.*micrometres or millimetres"),
         ({"name": "mine", "thickness_m": 0.5e-6}, r"thickness_m.*1-1000 um"),
         ({"prestretch": 1e-300}, r"prestretch.*stretch ratio >= 1"),
         ({"name": "mine", "prestretch": 19.0}, r"prestretch.*not a percentage"),
