@@ -27,8 +27,13 @@ Time handling
 * A clock that jumps backwards produces no movement on that update; later updates
   measure time from the new (earlier) value ("re-basing"), so a clock reset never
   freezes a ramp-down or blinds the watchdog. Backward jumps are counted.
-* The watchdog measures silence on an internal elapsed-time clock that advances
-  by the positive increments of every ``t`` passed to any method.
+* The watchdog measures silence by accumulating the positive increments of every
+  ``t`` passed to any method since the last valid command (the accumulator restarts
+  at 0 on every command, so no clock glitch, however large, makes later increments
+  vanish in floating point).
+* :class:`ControlClock` builds the controller's time axis from one or more source
+  clocks with every step clamped to ``[0, max_step_s]``: with a simulated clock a
+  jump never moves the output by more than one update's worth of slew.
 """
 from __future__ import annotations
 
@@ -37,7 +42,9 @@ import enum
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Optional
+from typing import Any, Callable, Dict, Mapping, Optional
+
+from ..model.parameters import MAX_BREAKDOWN_FIELD_V_PER_M
 
 __all__ = [
     "SafetyConfigError",
@@ -50,14 +57,25 @@ __all__ = [
     "SafeVoltageController",
     "membrane_voltage_limit_V",
     "drive_to_zero",
+    "ControlClock",
     "ABSOLUTE_MAX_VOLTAGE_V",
     "MAX_WATCHDOG_TIMEOUT_S",
+    "MAX_TIME_TO_ZERO_S",
+    "MIN_THICKNESS_M",
+    "MAX_THICKNESS_M",
 ]
 
 #: No DEA amplifier in use here exceeds this; a larger max is taken for a unit slip.
 ABSOLUTE_MAX_VOLTAGE_V = 30_000.0
 #: A watchdog longer than this is taken for a unit slip (milliseconds for seconds).
 MAX_WATCHDOG_TIMEOUT_S = 60.0
+#: Limits derived for a membrane (:meth:`SafetyLimits.from_membrane`) must bring the output
+#: from its maximum to 0 V within this time after the last command: watchdog timeout plus
+#: ramp-down time, s.
+MAX_TIME_TO_ZERO_S = 10.0
+#: Membrane thickness range (1-1000 um) accepted for a voltage limit, m.
+MIN_THICKNESS_M = 1e-6
+MAX_THICKNESS_M = 1e-3
 
 
 class SafetyConfigError(ValueError):
@@ -90,25 +108,28 @@ def membrane_voltage_limit_V(
     """Largest voltage allowed on a membrane: ``margin x breakdown_field x thickness``, V.
 
     ``thickness_m`` should be the thinnest the dielectric gets (the membrane thins
-    when it stretches under voltage); ``margin`` in (0, 1] covers that and the
-    scatter of the breakdown field.
+    when it stretches under voltage); ``margin`` in (0, 1), strictly below 1, covers
+    that and the scatter of the breakdown field. The breakdown field may not exceed
+    :data:`dea_ros.model.parameters.MAX_BREAKDOWN_FIELD_V_PER_M` (what elastomers reach).
     """
     thickness_m = _as_finite_float("thickness_m", thickness_m)
     breakdown_field_V_per_m = _as_finite_float("breakdown_field_V_per_m", breakdown_field_V_per_m)
     margin = _as_finite_float("margin", margin)
-    if not (1e-7 <= thickness_m <= 1e-2):
+    if not (MIN_THICKNESS_M <= thickness_m <= MAX_THICKNESS_M):
         raise SafetyConfigError(
-            f"field 'thickness_m': {thickness_m} is outside [1e-07, 0.01]; SI metres expected "
-            "(micrometres are 1e-6 m: 27 um -> 2.7e-05)"
+            f"field 'thickness_m': {thickness_m:g} m is outside [1e-06, 0.001] m (1-1000 um); SI metres "
+            "expected (micrometres are 1e-6 m: 27 um -> 2.7e-05)"
         )
-    if not (1e6 <= breakdown_field_V_per_m <= 1e10):
+    if not (1e6 <= breakdown_field_V_per_m <= MAX_BREAKDOWN_FIELD_V_PER_M):
         raise SafetyConfigError(
-            f"field 'breakdown_field_V_per_m': {breakdown_field_V_per_m} is outside [1e6, 1e10]; "
-            "SI V/m expected (100 V/um -> 1e8)"
+            f"field 'breakdown_field_V_per_m': {breakdown_field_V_per_m:g} V/m is outside "
+            f"[1e6, {MAX_BREAKDOWN_FIELD_V_PER_M:g}] V/m; SI V/m expected (100 V/um -> 1e8); no "
+            "elastomer reaches more than ~300 V/um: a typo in the exponent (8e8 for 8e7)?"
         )
-    if not (0.0 < margin <= 1.0):
+    if not (0.0 < margin < 1.0):
         raise SafetyConfigError(
-            f"field 'margin': must be in (0, 1] (fraction of the breakdown voltage), got {margin}"
+            f"field 'margin': must be in (0, 1), strictly below 1 (fraction of the breakdown voltage; "
+            f"1 leaves no headroom for thinning under voltage and scatter; typical 0.8-0.9), got {margin}"
         )
     return margin * breakdown_field_V_per_m * thickness_m
 
@@ -178,13 +199,15 @@ class SafetyLimits:
         watchdog_timeout_s: float,
         ramp_down_rate_V_per_s: Optional[float] = None,
         max_voltage_V: Optional[float] = None,
+        max_time_to_zero_s: float = MAX_TIME_TO_ZERO_S,
     ) -> "SafetyLimits":
         """Limits whose maximum is derived from the membrane.
 
         The derived limit is ``margin x breakdown_field_V_per_m x thickness_m``.
         ``max_voltage_V`` defaults to it; a configured ``max_voltage_V`` above it
         raises :class:`SafetyConfigError`. ``ramp_down_rate_V_per_s`` defaults to
-        the slew rate.
+        the slew rate. The output must reach 0 V within ``max_time_to_zero_s``
+        after the last command (watchdog timeout + maximum / ramp-down rate).
         """
         limit_V = membrane_voltage_limit_V(thickness_m, breakdown_field_V_per_m, margin)
         if max_voltage_V is None:
@@ -200,13 +223,28 @@ class SafetyLimits:
                 )
         if ramp_down_rate_V_per_s is None:
             ramp_down_rate_V_per_s = slew_rate_V_per_s
-        return cls(
+        limits = cls(
             max_voltage_V=max_voltage_V,
             slew_rate_V_per_s=slew_rate_V_per_s,
             watchdog_timeout_s=watchdog_timeout_s,
             ramp_down_rate_V_per_s=ramp_down_rate_V_per_s,
             membrane_limit_V=limit_V,
         )
+        silence_to_zero_s = limits.watchdog_timeout_s + limits.time_to_zero_s(limits.max_voltage_V)
+        if silence_to_zero_s > max_time_to_zero_s:
+            budget = (f"when commands stop the output would need {limits.watchdog_timeout_s:g} s "
+                      f"(watchdog_timeout_s) + {limits.max_voltage_V:.0f} V / "
+                      f"{limits.ramp_down_rate_V_per_s:g} V/s = {silence_to_zero_s:.4g} s to reach 0 V, "
+                      f"more than {max_time_to_zero_s:g} s")
+            if limits.watchdog_timeout_s >= 0.5 * max_time_to_zero_s:
+                raise SafetyConfigError(
+                    f"field 'watchdog_timeout_s': {budget}; lower watchdog_timeout_s well below "
+                    f"{max_time_to_zero_s:g} s (typically 0.2-1 s; a timeout in ms?)")
+            needed = limits.max_voltage_V / (max_time_to_zero_s - limits.watchdog_timeout_s)
+            raise SafetyConfigError(
+                f"field 'ramp_down_rate_V_per_s': {budget}; raise ramp_down_rate_V_per_s to at least "
+                f"{needed:.4g} V/s or lower watchdog_timeout_s (a rate in V/ms?)")
+        return limits
 
     @classmethod
     def from_membrane_parameters(cls, parameters: Any, margin: float, **kwargs: Any) -> "SafetyLimits":
@@ -348,11 +386,11 @@ class SafeVoltageController:
         self._target_V = 0.0
         self._output_V = 0.0
         self._last_update_t: Optional[float] = None
-        # Watchdog clock: accumulates the positive increments of every t seen.
+        # Watchdog: the positive increments of every t seen, accumulated since the last feed
+        # (and since the last accepted command); restarted at 0, so they stay exact.
         self._last_seen_t: Optional[float] = None
-        self._elapsed_s = 0.0
-        self._last_feed_elapsed_s: Optional[float] = None
-        self._last_command_elapsed_s: Optional[float] = None
+        self._silence_s: Optional[float] = None
+        self._since_command_s: Optional[float] = None
         self._accepted_count = 0
         self._rejected_counts = {reason.value: 0 for reason in RejectionReason}
         self._watchdog_trip_count = 0
@@ -407,20 +445,23 @@ class SafeVoltageController:
 
     # ------------------------------------------------------------------ clock
     def _observe_time(self, t: float) -> None:
-        """Advance the watchdog clock by the positive increment of ``t``."""
+        """Advance the watchdog accumulators by the positive increment of ``t``."""
         if self._last_seen_t is not None:
             dt = t - self._last_seen_t
             if dt > 0.0:
-                self._elapsed_s += dt
+                if self._silence_s is not None:
+                    self._silence_s += dt
+                if self._since_command_s is not None:
+                    self._since_command_s += dt
         self._last_seen_t = t
 
     def _feed_watchdog(self) -> None:
-        self._last_feed_elapsed_s = self._elapsed_s
+        self._silence_s = 0.0
 
     def _watchdog_expired(self) -> bool:
-        if self._last_feed_elapsed_s is None:
+        if self._silence_s is None:
             return False
-        return (self._elapsed_s - self._last_feed_elapsed_s) > self._limits.watchdog_timeout_s
+        return self._silence_s > self._limits.watchdog_timeout_s
 
     def _check_watchdog(self) -> None:
         if self._state is ControllerState.ACTIVE and self._watchdog_expired():
@@ -504,7 +545,7 @@ class SafeVoltageController:
         self._target_V = float(voltage_V) + 0.0  # +0.0 turns -0.0 into 0.0
         self._state = ControllerState.ACTIVE
         self._feed_watchdog()
-        self._last_command_elapsed_s = self._elapsed_s
+        self._since_command_s = 0.0
         self._accepted_count += 1
         return CommandResult(True, ACCEPTED, voltage_V, self._target_V)
 
@@ -553,14 +594,14 @@ class SafeVoltageController:
         With ``t`` the age is evaluated at ``t`` (without changing the state),
         otherwise at the latest time seen.
         """
-        if self._last_command_elapsed_s is None:
+        if self._since_command_s is None:
             return None
-        elapsed = self._elapsed_s
+        age = self._since_command_s
         if t is not None:
             t = _as_time_s("t", t)
             if self._last_seen_t is not None and t > self._last_seen_t:
-                elapsed += t - self._last_seen_t
-        return elapsed - self._last_command_elapsed_s
+                age += t - self._last_seen_t
+        return age
 
     def diagnostics(self, t: Optional[float] = None) -> ControllerDiagnostics:
         """Snapshot of state, target, output, counters and last command age."""
@@ -614,3 +655,58 @@ def drive_to_zero(
             break
         sleep(period_s)
     return output_V
+
+
+class ControlClock:
+    """The controller's time axis, s, built from one or more monotonic source clocks.
+
+    Each :meth:`advance` adds the source's increment since that source's previous
+    reading, clamped to ``[0, max_step_s]`` (``None``: no upper clamp). So a source
+    that jumps backwards adds nothing, one that jumps forwards adds at most
+    ``max_step_s``, and switching between sources (simulated clock, wall clock)
+    never makes the axis jump. The axis itself only ever increases.
+
+    In a node with simulated time, ``max_step_s`` = one update period: a jump of the
+    simulated clock then moves the output by at most one update's worth of slew.
+    """
+
+    def __init__(self, max_step_s: Optional[float] = None, start_s: float = 0.0) -> None:
+        if max_step_s is not None:
+            max_step_s = _as_finite_float("max_step_s", max_step_s)
+            if max_step_s <= 0.0:
+                raise SafetyConfigError(f"field 'max_step_s': must be > 0, got {max_step_s}")
+        self._max_step_s = max_step_s
+        self._t = _as_finite_float("start_s", start_s)
+        self._last: Dict[str, float] = {}
+        self.clamped_steps = 0  #: advances limited by ``max_step_s`` (forward jumps)
+        self.backward_steps = 0  #: source readings earlier than the previous one
+
+    @property
+    def now_s(self) -> float:
+        """The axis' present value (no source read), s."""
+        return self._t
+
+    @property
+    def max_step_s(self) -> Optional[float]:
+        return self._max_step_s
+
+    def advance(self, source_t: float, source: str = "default") -> float:
+        """Read ``source`` at ``source_t`` (s) and return the new axis value, s."""
+        source_t = _as_time_s("source_t", source_t)
+        last = self._last.get(source)
+        self._last[source] = source_t
+        if last is None:
+            return self._t
+        step = source_t - last
+        if step < 0.0:
+            self.backward_steps += 1
+            return self._t
+        if self._max_step_s is not None and step > self._max_step_s:
+            self.clamped_steps += 1
+            step = self._max_step_s
+        self._t += step
+        return self._t
+
+    def forget(self, source: str) -> None:
+        """Drop a source's reference: its next reading adds nothing (re-synchronise)."""
+        self._last.pop(source, None)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from dea_ros.hardware.amplifier_safety import (
+    ControlClock,
     ControllerState,
     RejectionReason,
     SafeVoltageController,
@@ -95,6 +96,11 @@ class TestSafetyLimits:
             (27e-6, 100.0, 0.9, "breakdown_field_V_per_m"),  # V/um given as V/m
             (27e-6, 100e6, 0.0, "margin"),
             (27e-6, 100e6, 1.5, "margin"),
+            (27e-6, 100e6, 1.0, "margin.*strictly below 1"),  # no headroom
+            (27e-6, 8e8, 0.9, "breakdown_field_V_per_m.*8e7"),  # exponent typo: 25 kV on A1
+            (27e-6, 1e10, 0.9, "breakdown_field_V_per_m"),
+            (2e-3, 100e6, 0.9, "thickness_m.*1-1000 um"),
+            (0.5e-6, 100e6, 0.9, "thickness_m"),
             (27e-6, float("nan"), 0.9, "breakdown_field_V_per_m"),
         ],
     )
@@ -102,6 +108,18 @@ class TestSafetyLimits:
         with pytest.raises(SafetyConfigError, match=culprit):
             SafetyLimits.from_membrane(thickness_m, field_V_per_m, margin, slew_rate_V_per_s=1000.0,
                                        watchdog_timeout_s=0.5)
+
+    def test_ramp_to_zero_must_finish_in_bounded_time_after_the_watchdog(self):
+        # the reproduction: ramp 1 V/s and a 60 s watchdog took 53 minutes to reach 0 V
+        with pytest.raises(SafetyConfigError, match=r"watchdog_timeout_s.*3210 s.*lower watchdog_timeout_s"):
+            SafetyLimits.from_membrane(35e-6, 100e6, 0.9, slew_rate_V_per_s=1e5, watchdog_timeout_s=60.0,
+                                       ramp_down_rate_V_per_s=1.0)
+        with pytest.raises(SafetyConfigError, match=r"ramp_down_rate_V_per_s.*3150 s.*at least 331.6 V/s"):
+            SafetyLimits.from_membrane(35e-6, 100e6, 0.9, slew_rate_V_per_s=1e5, watchdog_timeout_s=0.5,
+                                       ramp_down_rate_V_per_s=1.0)
+        limits = SafetyLimits.from_membrane(35e-6, 100e6, 0.9, slew_rate_V_per_s=1e5, watchdog_timeout_s=0.5,
+                                            ramp_down_rate_V_per_s=1e4)
+        assert limits.watchdog_timeout_s + limits.time_to_zero_s(limits.max_voltage_V) <= 10.0
 
     def test_direct_construction_checks_membrane_limit(self):
         with pytest.raises(SafetyConfigError, match="membrane limit"):
@@ -354,6 +372,33 @@ class TestClock:
         assert controller.update(1e300) == 0.0  # watchdog tripped long ago; ramp complete
         assert controller.state is ControllerState.WATCHDOG_TRIPPED
 
+    def test_huge_forward_glitch_does_not_blind_the_watchdog_later(self):
+        """One forward clock glitch of 1e14 s (or many large alternations) used to make later
+        increments vanish in the accumulator's floating point: the watchdog never tripped again."""
+        controller = make()
+        controller.command(1000.0, 0.0)
+        controller.update(1e14)  # glitch: trips (silence 1e14 s)
+        assert controller.state is ControllerState.WATCHDOG_TRIPPED
+        t = 1e14
+        controller.command(1000.0, t)  # commands resume on the glitched clock
+        for k in range(1, 2000):  # 1 ms steps (quantised to 1/64 s at 1e14), no command
+            controller.update(t + 1e-3 * k)
+            if controller.state is ControllerState.WATCHDOG_TRIPPED:
+                break
+        assert controller.state is ControllerState.WATCHDOG_TRIPPED and 500 <= k <= 520
+        # many large alternations, then small steps on a normal clock
+        controller = make()
+        for k in range(200):
+            controller.command(500.0, 0.0 if k % 2 else 1e15)
+            controller.update(0.0 if k % 2 else 1e15)
+        controller.command(500.0, 0.0)
+        controller.update(0.0)
+        steps = 0
+        while controller.state is ControllerState.ACTIVE and steps < 10_000:
+            steps += 1
+            controller.update(1e-3 * steps)
+        assert controller.state is ControllerState.WATCHDOG_TRIPPED and 500 <= steps <= 502
+
     def test_large_time_offsets(self):
         controller = make(active_at=1e9)
         controller.command(3000.0, 1e9)
@@ -495,8 +540,7 @@ class _FuzzChecker:
         self.emergency = False
         self.target = 0.0
         self.last_seen_t = None
-        self.tau = 0.0
-        self.feed_tau = None
+        self.silence = None  # watchdog: positive increments of t since the last feed
         self.feed_t = None
         self.jump_since_feed = False
         self.prev_t = None
@@ -509,14 +553,15 @@ class _FuzzChecker:
     def _see(self, t: float) -> None:
         if self.last_seen_t is not None:
             if t > self.last_seen_t:
-                self.tau += t - self.last_seen_t
+                if self.silence is not None:
+                    self.silence += t - self.last_seen_t
             elif t < self.last_seen_t:
                 self.jump_since_feed = True
         self.last_seen_t = t
 
     def _feed(self, t: float) -> None:
         # A feed stamped before the last update means t and the watchdog clock disagree.
-        self.feed_tau, self.feed_t = self.tau, t
+        self.silence, self.feed_t = 0.0, t
         self.jump_since_feed = self.prev_t is not None and self.prev_t > t
 
     def _start_ramp_down(self) -> None:
@@ -586,7 +631,7 @@ class _FuzzChecker:
     def update(self, t: float) -> None:
         lim = self.limits
         self._see(t)
-        if self.activated and not self.tripped and self.tau - self.feed_tau > lim.watchdog_timeout_s:
+        if self.activated and not self.tripped and self.silence > lim.watchdog_timeout_s:
             self.tripped, self.target = True, 0.0
             self._start_ramp_down()
             if not self.jump_since_feed and self.down_ref[0] is not None:
@@ -715,3 +760,51 @@ def test_fuzz_watchdog_silence_reaches_zero_in_time():
             if t >= deadline_t + u_ref / ramp * (1 + 1e-9) + 1e-12:
                 assert u == 0.0, "not at 0 V by timeout + output / ramp rate"
             previous_u = u
+
+
+# =========================================================================== control clock
+class TestControlClock:
+    def test_forward_jumps_are_clamped_backward_jumps_add_nothing(self):
+        clock = ControlClock(max_step_s=0.004)
+        assert clock.advance(100.0, "sim") == 0.0  # first reading: reference only
+        assert clock.advance(100.003, "sim") == pytest.approx(0.003)
+        assert clock.advance(100.403, "sim") == pytest.approx(0.007)  # +0.4 s jump: one step of 4 ms
+        assert clock.advance(50.0, "sim") == pytest.approx(0.007)  # backwards: nothing
+        assert clock.advance(50.001, "sim") == pytest.approx(0.008)  # re-based on the new value
+        assert clock.clamped_steps == 1 and clock.backward_steps == 1
+
+    def test_sources_do_not_interfere(self):
+        clock = ControlClock(max_step_s=0.01)
+        clock.advance(1e9, "sim")
+        clock.advance(5.0, "wall")
+        assert clock.advance(5.005, "wall") == pytest.approx(0.005)
+        assert clock.advance(1e9 + 100.0, "sim") == pytest.approx(0.015)  # stale source: one step at most
+        clock.forget("wall")
+        assert clock.advance(1e6, "wall") == pytest.approx(0.015)
+
+    def test_slew_per_update_is_bounded_whatever_the_source_does(self):
+        rng = random.Random(3)
+        limits = SafetyLimits(3000.0, 1e5, 0.5, 1e4)
+        period = 1e-3
+        clock = ControlClock(max_step_s=period)
+        controller = SafeVoltageController(limits)
+        source = 0.0
+        controller.activate(clock.advance(source))
+        previous = controller.update(clock.now_s)
+        for _ in range(20_000):
+            source += rng.choice([period, -rng.uniform(0, 1e3), rng.uniform(0, 1e6), 0.0, 1e300])
+            t = clock.advance(source)
+            if rng.random() < 0.5:
+                controller.command(rng.uniform(0, 3000.0), t)
+            u = controller.update(t)
+            assert abs(u - previous) <= 1e5 * period * (1 + 1e-12)
+            previous = u
+
+    def test_unlimited_clock_follows_its_source(self):
+        clock = ControlClock()
+        clock.advance(10.0)
+        assert clock.advance(12.5) == 2.5
+        with pytest.raises(SafetyConfigError, match="max_step_s"):
+            ControlClock(max_step_s=0.0)
+        with pytest.raises(ValueError):
+            clock.advance(float("nan"))
