@@ -9,7 +9,13 @@ Every backend takes the *high voltage* the amplifier should produce (V, e.g.
 * :class:`UldaqAmplifierBackend` -- a Measurement Computing USB DAQ (USB-1208/1608
   series, via the ``uldaq`` package and the ``libuldaq`` C library) whose analog
   output drives the amplifier input: DAQ volts = high voltage / amplifier gain
-  (e.g. TREK 10/10B-HS, 1000 V/V).
+  (e.g. TREK 10/10B-HS, 1000 V/V). Optionally it reads the amplifier's voltage
+  monitor on an analog input and drives an enable/interlock line on a digital output.
+
+:func:`describe_amplifier_rig` (pure) describes a DAQ board (:class:`DaqBoardInfo`,
+read with :func:`query_uldaq_board`) against what the configuration expects
+(:class:`AmplifierRigExpectation`): the AO range it chooses, the DAQ output at the
+ceiling, and every mismatch.
 
 The backends are the last line of defence, not the first: the slew limiting and
 the watchdog live in :mod:`dea_ros.hardware.amplifier_safety`. Still, every
@@ -39,7 +45,7 @@ import struct
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, Callable, Deque, Optional
+from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
 
 __all__ = [
     "AmplifierBackendError",
@@ -56,7 +62,14 @@ __all__ = [
     "DATAGRAM_SIZE",
     "UldaqAmplifierBackend",
     "parse_daq_range",
+    "choose_daq_range",
     "ULDAQ_INSTALL_HINT",
+    "DaqBoardInfo",
+    "AmplifierRigExpectation",
+    "AmplifierRigDescription",
+    "describe_amplifier_rig",
+    "query_uldaq_board",
+    "KNOWN_DAQ_BOARDS",
 ]
 
 ULDAQ_INSTALL_HINT = (
@@ -132,6 +145,19 @@ class AmplifierBackend(abc.ABC):
     def read_monitor_V(self) -> Optional[float]:
         """The amplifier's voltage monitor, V, or None when this backend has none."""
         return None
+
+    @property
+    def has_monitor(self) -> bool:
+        """True when :meth:`read_monitor_V` reads a real (or simulated) monitor."""
+        return False
+
+    @property
+    def has_enable_output(self) -> bool:
+        """True when :meth:`set_output_enabled` drives a hardware enable/interlock line."""
+        return False
+
+    def set_output_enabled(self, enabled: bool) -> None:
+        """Drive the amplifier's enable/interlock line (no-op without one)."""
 
     def write_voltage(self, voltage_V: float) -> None:
         """Make the amplifier output ``voltage_V`` (high voltage, V)."""
@@ -218,6 +244,10 @@ class InProcessAmplifierBackend(AmplifierBackend):
 
     def read_monitor_V(self) -> Optional[float]:
         return self._voltage_V if self._is_open else None
+
+    @property
+    def has_monitor(self) -> bool:
+        return True
 
     def close(self) -> None:
         if not self._is_open:
@@ -367,6 +397,12 @@ class MockAmplifierReceiver:
     non-finite or negative voltage) are counted in :attr:`garbage_count` and
     ignored; a datagram older than the latest of the same sender session
     (reordering) is counted in :attr:`stale_count` and ignored.
+
+    Dead-man: with ``deadman_timeout_s`` the simulated amplifier output
+    (:meth:`applied_voltage_V`) drops to 0 V by itself when no valid datagram
+    arrived for that long on the receiver's clock, as a real rig's interlock would
+    when its controller dies (SIGKILL, power loss, a hung process). A new datagram
+    re-arms it.
     """
 
     #: At most this many datagrams are drained per poll() (a flood cannot stall the caller).
@@ -379,9 +415,21 @@ class MockAmplifierReceiver:
         port: int = 0,
         host: str = "127.0.0.1",
         clock: Callable[[], float] = time.monotonic,
+        deadman_timeout_s: Optional[float] = None,
     ) -> None:
         if isinstance(port, bool) or not isinstance(port, int) or not (0 <= port <= 65535):
             raise AmplifierBackendError(f"field 'port': must be an int in [0, 65535], got {port!r}")
+        if deadman_timeout_s is not None:
+            if isinstance(deadman_timeout_s, bool) or not isinstance(deadman_timeout_s, numbers.Real) or not (
+                math.isfinite(deadman_timeout_s) and deadman_timeout_s > 0.0
+            ):
+                raise AmplifierBackendError(
+                    f"field 'deadman_timeout_s': must be None or a time > 0 s, got {deadman_timeout_s!r}"
+                )
+            deadman_timeout_s = float(deadman_timeout_s)
+        self._deadman_timeout_s = deadman_timeout_s
+        self._deadman_tripped = False
+        self._deadman_trip_count = 0
         self._clock = clock
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -430,6 +478,36 @@ class MockAmplifierReceiver:
     @property
     def is_open(self) -> bool:
         return self._socket is not None
+
+    @property
+    def deadman_timeout_s(self) -> Optional[float]:
+        return self._deadman_timeout_s
+
+    @property
+    def deadman_trip_count(self) -> int:
+        """How often the dead-man dropped a non-zero output to 0 V."""
+        return self._deadman_trip_count
+
+    def deadman_expired(self, now_s: Optional[float] = None) -> bool:
+        """True when the dead-man holds the output at 0 V (no datagram for the timeout)."""
+        if self._deadman_timeout_s is None or self._latest is None:
+            return False
+        now_s = self._clock() if now_s is None else now_s
+        return now_s - self._latest.received_s > self._deadman_timeout_s
+
+    def applied_voltage_V(self, now_s: Optional[float] = None) -> float:
+        """The simulated amplifier's output, V: the latest voltage received, or 0 V before
+        the first datagram and while the dead-man has expired. Does not poll."""
+        latest = self._latest
+        if latest is None:
+            return 0.0
+        if self.deadman_expired(now_s):
+            if not self._deadman_tripped and latest.voltage_V > 0.0:
+                self._deadman_trip_count += 1
+            self._deadman_tripped = True
+            return 0.0
+        self._deadman_tripped = False
+        return latest.voltage_V
 
     def poll(self) -> Optional[ReceivedVoltage]:
         """Drain pending datagrams; return the latest valid voltage (None if none yet)."""
@@ -524,6 +602,368 @@ _ERROR_HINTS = {
 }
 
 
+# =========================================================================== rig description
+#: The analog output ranges, analog input (mode -> channels, ranges) and digital ports of the
+#: boards this project was checked against (libuldaq sources, src/usb/ao|ai|dio/*.cpp; MCC
+#: user's guides): what :func:`query_uldaq_board` reports for them, and what the test fake offers.
+KNOWN_DAQ_BOARDS: Dict[str, Dict[str, Any]] = {
+    "USB-1208HS-4AO": {
+        "ao_channels": 4, "ao_ranges": ("BIP10VOLTS",),
+        "ai": (("SINGLE_ENDED", 8, ("BIP10VOLTS", "BIP5VOLTS", "BIP2PT5VOLTS", "UNI10VOLTS")),
+               ("DIFFERENTIAL", 4, ("BIP20VOLTS", "BIP10VOLTS", "BIP5VOLTS"))),
+        "dio": (("AUXPORT", 16, "BITIO"),),
+    },
+    "USB-1608GX-2AO": {
+        "ao_channels": 2, "ao_ranges": ("BIP10VOLTS",),
+        "ai": (("SINGLE_ENDED", 16, ("BIP10VOLTS", "BIP5VOLTS", "BIP2VOLTS", "BIP1VOLTS")),
+               ("DIFFERENTIAL", 8, ("BIP10VOLTS", "BIP5VOLTS", "BIP2VOLTS", "BIP1VOLTS"))),
+        "dio": (("AUXPORT", 8, "BITIO"),),
+    },
+    "USB-1208FS-Plus": {
+        "ao_channels": 2, "ao_ranges": ("UNI5VOLTS",),
+        "ai": (("SINGLE_ENDED", 8, ("BIP10VOLTS",)),
+               ("DIFFERENTIAL", 4, ("BIP20VOLTS", "BIP10VOLTS", "BIP5VOLTS", "BIP4VOLTS", "BIP2PT5VOLTS",
+                                    "BIP2VOLTS", "BIP1PT25VOLTS", "BIP1VOLTS"))),
+        "dio": (("FIRSTPORTA", 8, "IO"), ("FIRSTPORTB", 8, "IO")),
+    },
+    "USB-202": {
+        "ao_channels": 2, "ao_ranges": ("UNI5VOLTS",),
+        "ai": (("SINGLE_ENDED", 8, ("BIP10VOLTS",)),),
+        "dio": (("AUXPORT", 8, "BITIO"),),
+    },
+    "USB-205": {
+        "ao_channels": 2, "ao_ranges": ("UNI5VOLTS",),
+        "ai": (("SINGLE_ENDED", 8, ("BIP10VOLTS",)),),
+        "dio": (("AUXPORT", 8, "BITIO"),),
+    },
+}
+
+
+@dataclass(frozen=True)
+class DaqBoardInfo:
+    """What a connected DAQ reports (uldaq ``*Info`` objects), as plain names.
+
+    ``ai`` holds ``(input mode name, channels in that mode, range names)`` per supported
+    input mode; ``dio`` holds ``(port type name, number of bits, port I/O type name)``.
+    """
+
+    product_name: str
+    unique_id: str
+    ao_channels: int
+    ao_ranges: Tuple[str, ...]
+    ai: Tuple[Tuple[str, int, Tuple[str, ...]], ...] = ()
+    dio: Tuple[Tuple[str, int, str], ...] = ()
+
+    def __post_init__(self) -> None:  # canonical form: comparable whatever order the library lists
+        object.__setattr__(self, "ao_ranges", tuple(self.ao_ranges))
+        object.__setattr__(self, "ai", tuple(sorted((str(m), int(n), tuple(r)) for m, n, r in self.ai)))
+        object.__setattr__(self, "dio", tuple((str(p), int(n), str(t)) for p, n, t in self.dio))
+
+    @property
+    def label(self) -> str:
+        return f"{self.product_name} ({self.unique_id})" if self.unique_id else self.product_name
+
+    def ai_mode(self, mode: str) -> Optional[Tuple[int, Tuple[str, ...]]]:
+        for name, channels, ranges in self.ai:
+            if name == mode:
+                return channels, ranges
+        return None
+
+    def dio_port(self, port: str) -> Optional[Tuple[int, str]]:
+        for name, bits, io_type in self.dio:
+            if name == port:
+                return bits, io_type
+        return None
+
+    @classmethod
+    def known(cls, product_name: str, unique_id: str = "") -> "DaqBoardInfo":
+        """The description of a board of :data:`KNOWN_DAQ_BOARDS` (tests, documentation)."""
+        spec = KNOWN_DAQ_BOARDS[product_name]
+        return cls(product_name, unique_id, spec["ao_channels"], tuple(spec["ao_ranges"]),
+                   tuple(spec["ai"]), tuple(spec["dio"]))
+
+
+@dataclass(frozen=True)
+class AmplifierRigExpectation:
+    """What the configuration of amplifier_node expects of the amplifier and its DAQ.
+
+    Attributes:
+        backend: mock, uldaq or inprocess.
+        ceiling_V: the highest high voltage ever applied (decided at start-up), V.
+        amplifier_gain_V_per_V: amplifier output per input volt (TREK 10/10B-HS: 1000).
+        amplifier_max_output_V: rated output of the amplifier, V (TREK 10/10B-HS: 10000).
+        amplifier_input_full_scale_V: input giving the rated output, V (TREK: 10);
+            gain x full scale must equal the rated output (a gain slip shows here).
+        unique_id: the DAQ's serial number (None: the first one found).
+        ao_channel: analog output wired to the amplifier input.
+        ao_range: uldaq Range name, or "auto" (the smallest the board offers that covers
+            0 .. ceiling / gain).
+        monitor_channel: analog input wired to the amplifier's voltage monitor (None: none).
+        monitor_gain_V_per_V: high volts per monitor volt (None: the amplifier gain).
+        monitor_range: uldaq Range name or "auto" (the smallest covering the rated output).
+        monitor_input_mode: uldaq AiInputMode name (SINGLE_ENDED, DIFFERENTIAL).
+        enable_port: uldaq DigitalPortType name of the enable/interlock line (None: none).
+        enable_bit: bit of that port.
+    """
+
+    backend: str
+    ceiling_V: float
+    amplifier_gain_V_per_V: float = 1000.0
+    amplifier_max_output_V: float = 10000.0
+    amplifier_input_full_scale_V: float = 10.0
+    unique_id: Optional[str] = None
+    ao_channel: int = 0
+    ao_range: str = "auto"
+    monitor_channel: Optional[int] = None
+    monitor_gain_V_per_V: Optional[float] = None
+    monitor_range: str = "auto"
+    monitor_input_mode: str = "SINGLE_ENDED"
+    enable_port: Optional[str] = None
+    enable_bit: int = 0
+
+
+@dataclass(frozen=True)
+class AmplifierRigDescription:
+    """Result of :func:`describe_amplifier_rig`: what is there, what was chosen, what is wrong."""
+
+    expected: AmplifierRigExpectation
+    board: Optional[DaqBoardInfo]
+    ao_range: Optional[str]  #: chosen analog output range (uldaq with a board)
+    needed_daq_V: float  #: DAQ output at the ceiling = ceiling / gain, V
+    reachable_V: Optional[float]  #: chosen range's maximum x gain, V
+    monitor_range: Optional[str]  #: chosen monitor input range
+    mismatches: Tuple[str, ...]  #: each a sentence naming the parameter and the fix
+    notes: Tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.mismatches
+
+    def lines(self) -> List[str]:
+        """A human-readable report (for logs and ``dea-ros rig check``)."""
+        e = self.expected
+        out = [f"amplifier backend: {e.backend}; ceiling {e.ceiling_V:.1f} V; amplifier gain "
+               f"{e.amplifier_gain_V_per_V:g} V/V, rated {e.amplifier_max_output_V:g} V at "
+               f"{e.amplifier_input_full_scale_V:g} V input"]
+        if self.board is not None:
+            b = self.board
+            out.append(f"DAQ: {b.label}; AO {b.ao_channels} channel(s), ranges {list(b.ao_ranges)}; "
+                       f"AI {[(m, n) for m, n, _ in b.ai]}; DIO {[(p, n) for p, n, _ in b.dio]}")
+        elif e.backend == "uldaq":
+            out.append("DAQ: not connected / not read")
+        if self.ao_range is not None:
+            out.append(f"AO channel {e.ao_channel}, range {self.ao_range}: {self.needed_daq_V:.4g} V at the "
+                       f"ceiling; the range reaches {self.reachable_V:g} V on the amplifier")
+        if e.monitor_channel is not None:
+            out.append(f"monitor: AI channel {e.monitor_channel} ({e.monitor_input_mode}), range "
+                       f"{self.monitor_range}, {e.monitor_gain_V_per_V or e.amplifier_gain_V_per_V:g} V/V")
+        if e.enable_port is not None:
+            out.append(f"enable/interlock output: {e.enable_port} bit {e.enable_bit}")
+        out += [f"note: {n}" for n in self.notes]
+        out += [f"MISMATCH: {m}" for m in self.mismatches]
+        out.append("OK: the rig matches the configuration" if self.ok else
+                   f"{len(self.mismatches)} mismatch(es): no voltage will be applied")
+        return out
+
+
+def _range_span(name: str) -> Optional[Tuple[float, float]]:
+    try:
+        return parse_daq_range(name)
+    except AmplifierBackendError:
+        return None
+
+
+def choose_daq_range(ranges, needed_V: float) -> Optional[str]:
+    """The range (uldaq name) of ``ranges`` that covers ``0 .. needed_V`` with the smallest
+    span (best resolution; a unipolar one wins a tie), or None when none covers it."""
+    best = None
+    for name in ranges:
+        span = _range_span(str(name))
+        if span is None or span[0] > 0.0 or span[1] < needed_V:
+            continue
+        key = (span[1], span[0] < 0.0)
+        if best is None or key < best[0]:
+            best = (key, str(name))
+    return None if best is None else best[1]
+
+
+#: Gain x input full scale may differ from the rated output by this fraction.
+GAIN_TOLERANCE = 0.02
+
+
+def describe_amplifier_rig(
+    expected: AmplifierRigExpectation, board: Optional[DaqBoardInfo] = None
+) -> AmplifierRigDescription:
+    """Describe the amplifier and its DAQ against what the configuration expects (pure).
+
+    Checks, each failure a mismatch naming the parameter and the likely slip:
+
+    * the ceiling is at most the amplifier's rated output (a larger one means the membrane
+      limit is implausible: a thickness or breakdown-field slip);
+    * gain x input full scale = rated output within 2 % (a gain slip, e.g. 100 for 1000);
+    * with a board (uldaq): the AO channel exists; an AO range of the board covers
+      0 .. ceiling / gain ("auto" chooses the smallest, :func:`choose_daq_range`; a named
+      one must be offered and cover it); the monitor input mode, channel and range exist
+      and the range covers the amplifier's rated output / monitor gain; the enable port
+      and bit exist and can output;
+    * monitor and enable are refused for backends that have neither (mock, inprocess).
+    """
+    e = expected
+    mismatches: List[str] = []
+    notes: List[str] = []
+    gain = float(e.amplifier_gain_V_per_V)
+    needed_daq_V = float(e.ceiling_V) / gain if gain > 0 else math.inf
+    if not (gain > 0 and math.isfinite(gain)):
+        mismatches.append(f"amplifier_gain_V_per_V = {gain!r} must be a finite gain > 0 V/V")
+    if e.ceiling_V > e.amplifier_max_output_V:
+        mismatches.append(
+            f"the voltage ceiling {e.ceiling_V:.1f} V (membrane: margin x breakdown field x thickness, or "
+            f"max_voltage_V) is above the amplifier's rated output amplifier_max_output_V = "
+            f"{e.amplifier_max_output_V:g} V: a thickness or breakdown-field slip in the membrane file (x10?); "
+            f"if the membrane really holds more, set max_voltage_V to at most {e.amplifier_max_output_V:g} V")
+    full_scale_V = gain * e.amplifier_input_full_scale_V
+    if e.amplifier_max_output_V > 0 and abs(full_scale_V / e.amplifier_max_output_V - 1.0) > GAIN_TOLERANCE:
+        mismatches.append(
+            f"amplifier_gain_V_per_V = {gain:g} V/V x amplifier_input_full_scale_V = "
+            f"{e.amplifier_input_full_scale_V:g} V = {full_scale_V:g} V, but amplifier_max_output_V = "
+            f"{e.amplifier_max_output_V:g} V: one of the three is wrong (a gain slip would scale every output; "
+            f"TREK 10/10B-HS: 1000 V/V, 10 V, 10000 V)")
+    ao_range = monitor_range = None
+    reachable_V = None
+    if e.backend != "uldaq":
+        if e.monitor_channel is not None:
+            mismatches.append(f"monitor_channel = {e.monitor_channel}: the {e.backend} backend has no monitor "
+                              "input (uldaq only); set monitor_channel to -1")
+        if e.enable_port is not None:
+            mismatches.append(f"enable_port = {e.enable_port!r}: the {e.backend} backend has no enable output "
+                              "(uldaq only); set enable_port to ''")
+    elif board is not None:
+        label = board.label
+        if board.ao_channels <= 0:
+            mismatches.append(f"{label} has no analog output; use a DAQ with AO (USB-1208HS-4AO, USB-1608GX-2AO)")
+        elif not (0 <= e.ao_channel < board.ao_channels):
+            mismatches.append(f"uldaq_channel = {e.ao_channel}, but {label} has analog output channels "
+                              f"0..{board.ao_channels - 1}")
+        wanted = str(e.ao_range).strip().upper()
+        if wanted == "AUTO":
+            ao_range = choose_daq_range(board.ao_ranges, needed_daq_V)
+            if ao_range is None:
+                mismatches.append(
+                    f"no analog output range of {label} (ranges {list(board.ao_ranges)}) covers the needed "
+                    f"0..{needed_daq_V:.4g} V (ceiling {e.ceiling_V:.1f} V / gain {gain:g} V/V); a gain slip, "
+                    "or a board with a larger output range")
+        elif wanted not in board.ao_ranges:
+            mismatches.append(f"uldaq_range = {wanted} is not offered by {label}; it offers {list(board.ao_ranges)} "
+                              "(use 'auto')")
+        else:
+            span = _range_span(wanted)
+            if span is None or span[0] > 0.0 or span[1] < needed_daq_V:
+                mismatches.append(f"uldaq_range = {wanted} does not cover the needed 0..{needed_daq_V:.4g} V "
+                                  f"(ceiling {e.ceiling_V:.1f} V / gain {gain:g} V/V)")
+            else:
+                ao_range = wanted
+        if ao_range is not None:
+            span = _range_span(ao_range)
+            reachable_V = span[1] * gain
+            if span[1] > e.amplifier_input_full_scale_V * (1.0 + GAIN_TOLERANCE):
+                notes.append(f"the range {ao_range} can exceed the amplifier's {e.amplifier_input_full_scale_V:g} V "
+                             "input full scale; only the software clamp prevents it")
+            if reachable_V > e.ceiling_V:
+                notes.append(f"the range reaches {reachable_V:g} V on the amplifier, above the ceiling "
+                             f"{e.ceiling_V:.1f} V: the DAQ output is clamped at {needed_daq_V:.4g} V in software; "
+                             "a hardware limit on the amplifier is the real protection")
+        if e.monitor_channel is not None:
+            mode = str(e.monitor_input_mode).strip().upper()
+            found = board.ai_mode(mode)
+            monitor_gain = e.monitor_gain_V_per_V or gain
+            needed_monitor_V = e.amplifier_max_output_V / monitor_gain
+            if found is None:
+                mismatches.append(f"monitor_input_mode = {mode}: {label} has analog input modes "
+                                  f"{[m for m, _, _ in board.ai]}")
+            else:
+                channels, ai_ranges = found
+                if not (0 <= e.monitor_channel < channels):
+                    mismatches.append(f"monitor_channel = {e.monitor_channel}, but {label} has {mode} analog "
+                                      f"inputs 0..{channels - 1}")
+                wanted_monitor = str(e.monitor_range).strip().upper()
+                if wanted_monitor == "AUTO":  # a bipolar range first: it shows a polarity error too
+                    bipolar = [r for r in ai_ranges if (_range_span(r) or (0.0, 0.0))[0] < 0.0]
+                    monitor_range = (choose_daq_range(bipolar, needed_monitor_V)
+                                     or choose_daq_range(ai_ranges, needed_monitor_V))
+                    if monitor_range is None:
+                        mismatches.append(
+                            f"no {mode} analog input range of {label} ({list(ai_ranges)}) covers the monitor "
+                            f"signal 0..{needed_monitor_V:.4g} V (rated output {e.amplifier_max_output_V:g} V / "
+                            f"monitor gain {monitor_gain:g} V/V)")
+                elif wanted_monitor not in ai_ranges:
+                    mismatches.append(f"monitor_range = {wanted_monitor} is not a {mode} range of {label}: "
+                                      f"{list(ai_ranges)}")
+                else:
+                    monitor_range = wanted_monitor
+        if e.enable_port is not None:
+            port = str(e.enable_port).strip().upper()
+            found_port = board.dio_port(port)
+            if found_port is None:
+                mismatches.append(f"enable_port = {port}: {label} has digital ports "
+                                  f"{[p for p, _, _ in board.dio]}")
+            else:
+                bits, io_type = found_port
+                if not (0 <= e.enable_bit < bits):
+                    mismatches.append(f"enable_bit = {e.enable_bit}, but {port} of {label} has bits 0..{bits - 1}")
+                if io_type == "IN":
+                    mismatches.append(f"enable_port = {port} of {label} is input-only")
+    return AmplifierRigDescription(e, board, ao_range, needed_daq_V, reachable_V, monitor_range,
+                                   tuple(mismatches), tuple(notes))
+
+
+def _enum_name(value: Any) -> str:
+    return str(getattr(value, "name", value))
+
+
+def _read_board_info(ul: Any, device: Any, descriptor: Any) -> DaqBoardInfo:
+    """Read a connected uldaq ``DaqDevice`` into a :class:`DaqBoardInfo`."""
+    name = getattr(descriptor, "product_name", "?")
+    uid = getattr(descriptor, "unique_id", "")
+    if isinstance(uid, bytes):
+        uid = uid.decode("utf-8", "replace")
+    ao_channels, ao_ranges = 0, ()
+    ao = device.get_ao_device()
+    if ao is not None:
+        info = ao.get_info()
+        ao_channels = int(info.get_num_chans())
+        ao_ranges = tuple(_enum_name(r) for r in info.get_ranges())
+    ai_modes = []
+    ai = device.get_ai_device()
+    if ai is not None:
+        info = ai.get_info()
+        for mode in ul.AiInputMode:
+            try:
+                channels = int(info.get_num_chans_by_mode(mode))
+            except Exception:  # noqa: BLE001 - a mode the device does not know
+                continue
+            if channels > 0:
+                ai_modes.append((_enum_name(mode), channels, tuple(_enum_name(r) for r in info.get_ranges(mode))))
+    dio_ports = []
+    dio = device.get_dio_device()
+    if dio is not None:
+        info = dio.get_info()
+        for port in info.get_port_types():
+            port_info = info.get_port_info(port)
+            dio_ports.append((_enum_name(port), int(port_info.number_of_bits), _enum_name(port_info.port_io_type)))
+    return DaqBoardInfo(str(name), str(uid), ao_channels, ao_ranges, tuple(ai_modes), tuple(dio_ports))
+
+
+def query_uldaq_board(unique_id: Optional[str] = None, interface: str = "USB") -> DaqBoardInfo:
+    """Connect to a Measurement Computing DAQ, read what it offers, disconnect (writes nothing).
+
+    For ``dea-ros rig check``: pass the result to :func:`describe_amplifier_rig`.
+    Raises :class:`AmplifierBackendError` (no uldaq, no device, no such unique_id).
+    """
+    probe = UldaqAmplifierBackend(unique_id=unique_id, max_voltage_V=1.0, amplifier_gain_V_per_V=1000.0,
+                                  interface=interface)
+    return probe.read_board()
+
+
 class UldaqAmplifierBackend(AmplifierBackend):
     """Amplifier driven by the analog output of a Measurement Computing DAQ (``uldaq``).
 
@@ -532,20 +972,29 @@ class UldaqAmplifierBackend(AmplifierBackend):
             None uses the first device found.
         channel: analog output channel wired to the amplifier input.
         amplifier_gain_V_per_V: amplifier gain, V out per V in (TREK 10/10B-HS: 1000).
-        ao_range: uldaq ``Range`` name of the analog output ('UNI10VOLTS', 'BIP10VOLTS', ...);
-            checked against ``AoInfo.get_ranges()`` of the device on open.
+        ao_range: uldaq ``Range`` name of the analog output, or "auto": on open the
+            smallest range the board reports that covers ``0 .. max_voltage_V / gain``
+            (:func:`describe_amplifier_rig`; none covering it refuses to open, naming
+            the board and its ranges).
         max_voltage_V: highest high voltage ever written, V (required: the backend
             cannot know it). Writes above it are refused; the DAQ output is clamped
             to ``[0, min(range max, max_voltage_V / gain)]``.
-        strict_range_check: when the AO range times the gain could exceed
-            ``max_voltage_V`` an :class:`AmplifierRangeWarning` is issued; with
-            True an :class:`AmplifierBackendError` is raised instead.
+        strict_range_check: a named ``ao_range`` whose maximum times the gain exceeds
+            ``max_voltage_V`` gives an :class:`AmplifierRangeWarning`; with True an
+            :class:`AmplifierBackendError` instead.
         interface: uldaq ``InterfaceType`` name used for discovery ('USB', 'ANY', ...).
+        amplifier_max_output_V, amplifier_input_full_scale_V: the amplifier's rating
+            (checked against the gain on open).
         monitor_channel: analog input wired to the amplifier's voltage monitor
             (None: no monitor).
         monitor_gain_V_per_V: high volts per monitor volt (defaults to the amplifier gain).
-        monitor_range: uldaq ``Range`` name of the monitor input.
+        monitor_range: uldaq ``Range`` name of the monitor input, or "auto".
         monitor_input_mode: uldaq ``AiInputMode`` name of the monitor input.
+        enable_port: uldaq ``DigitalPortType`` name of the amplifier's enable/interlock
+            line (None: none); ``enable_bit`` its bit; ``enable_active_high`` its polarity.
+        enable_heartbeat: while enabled, toggle the line on every write (for a hardware
+            watchdog relay / retriggerable monostable that drops the enable when the
+            toggling stops: protects against SIGKILL and a hung process too).
 
     ``uldaq`` is imported only in :meth:`open` (it loads ``libuldaq.so`` at import).
     """
@@ -555,15 +1004,21 @@ class UldaqAmplifierBackend(AmplifierBackend):
         unique_id: Optional[str] = None,
         channel: int = 0,
         amplifier_gain_V_per_V: float = 1000.0,
-        ao_range: str = "UNI10VOLTS",
+        ao_range: str = "auto",
         *,
         max_voltage_V: float,
         strict_range_check: bool = False,
         interface: str = "USB",
+        amplifier_max_output_V: float = 10000.0,
+        amplifier_input_full_scale_V: float = 10.0,
         monitor_channel: Optional[int] = None,
         monitor_gain_V_per_V: Optional[float] = None,
-        monitor_range: str = "BIP10VOLTS",
+        monitor_range: str = "auto",
         monitor_input_mode: str = "SINGLE_ENDED",
+        enable_port: Optional[str] = None,
+        enable_bit: int = 0,
+        enable_active_high: bool = True,
+        enable_heartbeat: bool = False,
     ) -> None:
         if max_voltage_V is None:
             raise AmplifierBackendError(
@@ -572,8 +1027,9 @@ class UldaqAmplifierBackend(AmplifierBackend):
             )
         super().__init__(max_voltage_V)
         assert self._max_voltage_V is not None
-        if isinstance(channel, bool) or not isinstance(channel, int) or channel < 0:
-            raise AmplifierBackendError(f"field 'channel': must be an int >= 0, got {channel!r}")
+        for name, value, low in (("channel", channel, 0), ("enable_bit", enable_bit, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < low:
+                raise AmplifierBackendError(f"field '{name}': must be an int >= {low}, got {value!r}")
         if monitor_channel is not None and (
             isinstance(monitor_channel, bool) or not isinstance(monitor_channel, int) or monitor_channel < 0
         ):
@@ -581,51 +1037,69 @@ class UldaqAmplifierBackend(AmplifierBackend):
                 f"field 'monitor_channel': must be None or an int >= 0, got {monitor_channel!r}"
             )
         self._gain = self._positive("amplifier_gain_V_per_V", amplifier_gain_V_per_V)
+        self._amp_max_V = self._positive("amplifier_max_output_V", amplifier_max_output_V)
+        self._amp_full_scale_V = self._positive("amplifier_input_full_scale_V", amplifier_input_full_scale_V)
         self._monitor_gain = (
             self._gain
             if monitor_gain_V_per_V is None
             else self._positive("monitor_gain_V_per_V", monitor_gain_V_per_V)
         )
-        self._ao_range_name = str(ao_range).strip().upper()
-        self._ao_min_V, self._ao_max_V = parse_daq_range(self._ao_range_name)
-        self._monitor_range_name = str(monitor_range).strip().upper()
-        parse_daq_range(self._monitor_range_name)
+        self._ao_range_request = str(ao_range).strip().upper()
+        self._ao_range_name: Optional[str] = None
+        if self._ao_range_request != "AUTO":
+            self._ao_range_name = self._ao_range_request
+            self._set_range_limits(self._ao_range_name, strict_range_check, warn=True)
+        self._monitor_range_request = str(monitor_range).strip().upper()
+        if self._monitor_range_request != "AUTO":
+            parse_daq_range(self._monitor_range_request)
+        self._monitor_range_name: Optional[str] = None
         self._monitor_input_mode_name = str(monitor_input_mode).strip().upper()
         self._interface_name = str(interface).strip().upper()
         self._unique_id = None if unique_id is None else str(unique_id)
         self._channel = channel
         self._monitor_channel = monitor_channel
-
-        # Range x gain vs the configured maximum.
-        reachable_V = max(abs(self._ao_min_V), abs(self._ao_max_V)) * self._gain
-        if reachable_V > self._max_voltage_V:
-            message = (
-                f"UldaqAmplifierBackend: ao_range {self._ao_range_name} x gain {self._gain:g} V/V "
-                f"can drive the amplifier to {reachable_V:g} V, above max_voltage_V = "
-                f"{self._max_voltage_V:g} V; only the software clamp at "
-                f"{self._max_voltage_V / self._gain:g} V DAQ output prevents it. Prefer a smaller "
-                "AO range or a hardware limit on the amplifier"
-            )
-            if strict_range_check:
-                raise AmplifierBackendError(message + " (strict_range_check=True refuses this)")
-            warnings.warn(message, AmplifierRangeWarning, stacklevel=2)
-        if self._ao_max_V * self._gain < self._max_voltage_V:
-            warnings.warn(
-                f"UldaqAmplifierBackend: max_voltage_V = {self._max_voltage_V:g} V is unreachable "
-                f"with ao_range {self._ao_range_name} x gain {self._gain:g} V/V "
-                f"(at most {self._ao_max_V * self._gain:g} V); commands above are clamped",
-                AmplifierRangeWarning,
-                stacklevel=2,
-            )
-        self._daq_limit_V = min(self._ao_max_V, self._max_voltage_V / self._gain)
+        self._enable_port_name = None if not enable_port else str(enable_port).strip().upper()
+        self._enable_bit = enable_bit
+        self._enable_active_high = bool(enable_active_high)
+        self._enable_heartbeat = bool(enable_heartbeat)
+        self._enabled = False
+        self._heartbeat_level = False
 
         self._uldaq: Any = None
         self._device: Any = None
         self._ao_device: Any = None
         self._ai_device: Any = None
+        self._dio_device: Any = None
         self._faulted: Optional[str] = None
         self._last_daq_V: Optional[float] = None
         self._descriptor_text = ""
+        self._board: Optional[DaqBoardInfo] = None
+        self._description: Optional[AmplifierRigDescription] = None
+
+    def _set_range_limits(self, range_name: str, strict: bool = False, warn: bool = False) -> None:
+        self._ao_min_V, self._ao_max_V = parse_daq_range(range_name)
+        assert self._max_voltage_V is not None
+        reachable_V = max(abs(self._ao_min_V), abs(self._ao_max_V)) * self._gain
+        if warn and reachable_V > self._max_voltage_V:
+            message = (
+                f"UldaqAmplifierBackend: ao_range {range_name} x gain {self._gain:g} V/V "
+                f"can drive the amplifier to {reachable_V:g} V, above max_voltage_V = "
+                f"{self._max_voltage_V:g} V; only the software clamp at "
+                f"{self._max_voltage_V / self._gain:g} V DAQ output prevents it. Prefer a smaller "
+                "AO range or a hardware limit on the amplifier"
+            )
+            if strict:
+                raise AmplifierBackendError(message + " (strict_range_check=True refuses this)")
+            warnings.warn(message, AmplifierRangeWarning, stacklevel=3)
+        if warn and self._ao_max_V * self._gain < self._max_voltage_V:
+            warnings.warn(
+                f"UldaqAmplifierBackend: max_voltage_V = {self._max_voltage_V:g} V is unreachable "
+                f"with ao_range {range_name} x gain {self._gain:g} V/V "
+                f"(at most {self._ao_max_V * self._gain:g} V); commands above are clamped",
+                AmplifierRangeWarning,
+                stacklevel=3,
+            )
+        self._daq_limit_V = min(self._ao_max_V, self._max_voltage_V / self._gain)
 
     @staticmethod
     def _positive(name: str, value: Any) -> float:
@@ -642,9 +1116,15 @@ class UldaqAmplifierBackend(AmplifierBackend):
         return self._gain
 
     @property
-    def daq_limit_V(self) -> float:
-        """Largest DAQ output ever written, V (= min(range max, max_voltage_V / gain))."""
-        return self._daq_limit_V
+    def ao_range(self) -> Optional[str]:
+        """The analog output range in use (chosen on open when "auto"; None before)."""
+        return self._ao_range_name
+
+    @property
+    def daq_limit_V(self) -> Optional[float]:
+        """Largest DAQ output ever written, V (= min(range max, max_voltage_V / gain)); None
+        while the range is not chosen yet."""
+        return getattr(self, "_daq_limit_V", None)
 
     @property
     def last_daq_V(self) -> Optional[float]:
@@ -660,8 +1140,42 @@ class UldaqAmplifierBackend(AmplifierBackend):
     def device_description(self) -> str:
         return self._descriptor_text
 
+    @property
+    def board(self) -> Optional[DaqBoardInfo]:
+        """What the connected board reported on open."""
+        return self._board
+
+    @property
+    def rig_description(self) -> Optional[AmplifierRigDescription]:
+        """:func:`describe_amplifier_rig` of the board found on open."""
+        return self._description
+
+    @property
+    def has_monitor(self) -> bool:
+        return self._monitor_channel is not None
+
+    @property
+    def has_enable_output(self) -> bool:
+        return self._enable_port_name is not None
+
+    def expectation(self) -> AmplifierRigExpectation:
+        """What this backend's configuration expects of the board."""
+        assert self._max_voltage_V is not None
+        return AmplifierRigExpectation(
+            backend="uldaq", ceiling_V=self._max_voltage_V, amplifier_gain_V_per_V=self._gain,
+            amplifier_max_output_V=self._amp_max_V, amplifier_input_full_scale_V=self._amp_full_scale_V,
+            unique_id=self._unique_id, ao_channel=self._channel,
+            ao_range=self._ao_range_request if self._ao_range_request != "AUTO" else "auto",
+            monitor_channel=self._monitor_channel, monitor_gain_V_per_V=self._monitor_gain,
+            monitor_range=self._monitor_range_request if self._monitor_range_request != "AUTO" else "auto",
+            monitor_input_mode=self._monitor_input_mode_name, enable_port=self._enable_port_name,
+            enable_bit=self._enable_bit,
+        )
+
     def high_voltage_to_daq_V(self, voltage_V: float) -> float:
         """DAQ analog output for a high voltage: ``V / gain`` clamped to ``[0, daq_limit_V]``."""
+        if self.daq_limit_V is None:
+            raise AmplifierBackendError("UldaqAmplifierBackend: the AO range is chosen on open(); open first")
         daq_V = float(voltage_V) / self._gain
         return min(max(daq_V, max(self._ao_min_V, 0.0)), self._daq_limit_V) + 0.0
 
@@ -733,16 +1247,11 @@ class UldaqAmplifierBackend(AmplifierBackend):
             f"connected devices have unique_id {found}; fix the unique_id parameter"
         )
 
-    # ---------------------------------------------------------------- lifecycle
-    def open(self) -> None:
-        """Find and connect the DAQ, check channel and range, write 0 V."""
-        if self._is_open:
-            return
+    def _connect(self) -> Any:
+        """Import uldaq, find and connect the device; return its descriptor."""
         self._uldaq = self._import_uldaq()
         ul = self._uldaq
         errors = self._ul_errors()
-        self._faulted = None
-        ao_range = self._enum("Range", self._ao_range_name)
         interface = self._enum("InterfaceType", self._interface_name)
         try:
             descriptors = list(ul.get_daq_device_inventory(interface))
@@ -757,47 +1266,98 @@ class UldaqAmplifierBackend(AmplifierBackend):
             getattr(descriptor, "product_name", "?"), getattr(descriptor, "unique_id", "?")
         )
         try:
+            self._device.connect()
+        except errors as exc:
+            self._release_device()
+            raise self._describe(f"connecting to {self._descriptor_text}", exc) from exc
+        return descriptor
+
+    def read_board(self) -> DaqBoardInfo:
+        """Connect, read what the board offers, release it (writes nothing)."""
+        if self._is_open:
+            assert self._board is not None
+            return self._board
+        descriptor = self._connect()
+        try:
+            return _read_board_info(self._uldaq, self._device, descriptor)
+        except self._ul_errors() as exc:
+            raise self._describe(f"reading the capabilities of {self._descriptor_text}", exc) from exc
+        finally:
+            self._release_device()
+
+    # ---------------------------------------------------------------- lifecycle
+    def open(self) -> None:
+        """Find and connect the DAQ, check it against the configuration, choose the AO range,
+        drive the enable line inactive and write 0 V (and check the monitor reads ~0 V)."""
+        if self._is_open:
+            return
+        self._faulted = None
+        descriptor = self._connect()
+        errors = self._ul_errors()
+        try:
             try:
-                self._device.connect()
+                board = _read_board_info(self._uldaq, self._device, descriptor)
             except errors as exc:
-                raise self._describe(f"connecting to {self._descriptor_text}", exc) from exc
+                raise self._describe(f"reading the capabilities of {self._descriptor_text}", exc) from exc
+            self._board = board
+            self._description = description = describe_amplifier_rig(self.expectation(), board)
+            if not description.ok:
+                raise AmplifierBackendError(
+                    f"UldaqAmplifierBackend: {board.label} does not match the configuration: "
+                    + "; ".join(description.mismatches)
+                )
+            assert description.ao_range is not None
+            self._ao_range_name = description.ao_range
+            self._set_range_limits(self._ao_range_name)
+            self._monitor_range_name = description.monitor_range
             self._ao_device = self._device.get_ao_device()
-            if self._ao_device is None:
-                raise AmplifierBackendError(
-                    f"UldaqAmplifierBackend: {self._descriptor_text} has no analog output; "
-                    "use a DAQ with AO (e.g. USB-1208HS-4AO, USB-1608GX-2AO)"
-                )
-            try:
-                ao_info = self._ao_device.get_info()
-                num_channels = int(ao_info.get_num_chans())
-                ranges = list(ao_info.get_ranges())
-            except errors as exc:
-                raise self._describe("reading the analog output info", exc) from exc
-            if self._channel >= num_channels:
-                raise AmplifierBackendError(
-                    f"UldaqAmplifierBackend: field 'channel' = {self._channel} but "
-                    f"{self._descriptor_text} has {num_channels} analog output channel(s) "
-                    f"(0..{num_channels - 1})"
-                )
-            if ao_range not in ranges:
-                names = [getattr(r, "name", str(r)) for r in ranges]
-                raise AmplifierBackendError(
-                    f"UldaqAmplifierBackend: field 'ao_range' = {self._ao_range_name} is not "
-                    f"supported by {self._descriptor_text}; supported: {names}"
-                )
             if self._monitor_channel is not None:
                 self._ai_device = self._device.get_ai_device()
-                if self._ai_device is None:
-                    raise AmplifierBackendError(
-                        f"UldaqAmplifierBackend: monitor_channel set but {self._descriptor_text} "
-                        "has no analog input; set monitor_channel to None"
-                    )
+            if self._enable_port_name is not None:
+                self._dio_device = self._device.get_dio_device()
+                self._configure_enable_output()
             self._is_open = True
+            self.set_output_enabled(False)
             self.write_voltage(0.0)
         except BaseException:
             self._is_open = False
             self._release_device()
             raise
+
+    def _configure_enable_output(self) -> None:
+        ul = self._uldaq
+        port = self._enum("DigitalPortType", self._enable_port_name)
+        assert self._board is not None
+        found = self._board.dio_port(self._enable_port_name)
+        io_type = found[1] if found else "BITIO"
+        try:
+            if io_type == "BITIO":
+                self._dio_device.d_config_bit(port, self._enable_bit, ul.DigitalDirection.OUTPUT)
+            elif io_type == "IO":  # port-configurable only: the whole port becomes an output
+                self._dio_device.d_config_port(port, ul.DigitalDirection.OUTPUT)
+        except self._ul_errors() as exc:
+            raise self._describe(f"configuring {self._enable_port_name} bit {self._enable_bit} as output",
+                                 exc) from exc
+
+    def _write_enable_level(self, level: bool) -> None:
+        bit_value = 1 if (level == self._enable_active_high) else 0
+        self._dio_device.d_bit_out(self._enum("DigitalPortType", self._enable_port_name), self._enable_bit,
+                                   bit_value)
+
+    def set_output_enabled(self, enabled: bool) -> None:
+        """Drive the enable/interlock line (active level while enabled; with heartbeat the
+        line toggles on every write while enabled and rests inactive otherwise)."""
+        if self._enable_port_name is None or self._dio_device is None:
+            return
+        enabled = bool(enabled)
+        try:
+            self._write_enable_level(enabled)
+        except self._ul_errors() as exc:
+            error = self._describe(f"driving the enable line {self._enable_port_name} bit {self._enable_bit}", exc)
+            self._faulted = str(error)
+            raise error from exc
+        self._enabled = enabled
+        self._heartbeat_level = enabled
 
     def _a_out(self, daq_V: float) -> None:
         ul = self._uldaq
@@ -814,6 +1374,9 @@ class UldaqAmplifierBackend(AmplifierBackend):
         daq_V = self.high_voltage_to_daq_V(voltage_V)
         try:
             self._a_out(daq_V)
+            if self._enable_heartbeat and self._enabled and self._dio_device is not None:
+                self._heartbeat_level = not self._heartbeat_level
+                self._write_enable_level(self._heartbeat_level)
         except self._ul_errors() as exc:
             error = self._describe(f"writing {daq_V:.6g} V to AO channel {self._channel}", exc)
             self._faulted = str(error)
@@ -829,7 +1392,7 @@ class UldaqAmplifierBackend(AmplifierBackend):
             monitor_V = self._ai_device.a_in(
                 self._monitor_channel,
                 self._enum("AiInputMode", self._monitor_input_mode_name),
-                self._enum("Range", self._monitor_range_name),
+                self._enum("Range", self._monitor_range_name or self._monitor_range_request),
                 ul.AInFlag.DEFAULT,
             )
         except self._ul_errors() as exc:
@@ -843,6 +1406,7 @@ class UldaqAmplifierBackend(AmplifierBackend):
         device, self._device = self._device, None
         self._ao_device = None
         self._ai_device = None
+        self._dio_device = None
         if device is None:
             return problems
         errors = self._ul_errors()
@@ -858,7 +1422,7 @@ class UldaqAmplifierBackend(AmplifierBackend):
         return problems
 
     def close(self) -> None:
-        """Write 0 V, disconnect and release the DAQ.
+        """Drive the enable line inactive, write 0 V, disconnect and release the DAQ.
 
         Everything is released even when a step fails; if 0 V could not be
         written an :class:`AmplifierBackendError` is raised afterwards, because
@@ -870,6 +1434,11 @@ class UldaqAmplifierBackend(AmplifierBackend):
         try:
             # Bypass the fault latch: try to reach 0 V even after an error.
             self._faulted = None
+            try:
+                self.set_output_enabled(False)
+            except AmplifierBackendError as exc:
+                zero_error = exc
+                self._faulted = None
             self.write_voltage(0.0)
         except AmplifierBackendError as exc:
             zero_error = exc

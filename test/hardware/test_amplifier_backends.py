@@ -5,6 +5,7 @@ import enum
 import importlib.abc
 import importlib.machinery
 import math
+import re
 import socket
 import struct
 import sys
@@ -16,6 +17,11 @@ import pytest
 
 from dea_ros.hardware.amplifier_backends import (
     DATAGRAM_SIZE,
+    AmplifierRigExpectation,
+    DaqBoardInfo,
+    choose_daq_range,
+    describe_amplifier_rig,
+    query_uldaq_board,
     AmplifierBackend,
     AmplifierBackendError,
     AmplifierRangeWarning,
@@ -140,6 +146,29 @@ class TestUdpMockPair:
             assert receiver.garbage_count == 0 and receiver.stale_count == 0
             assert receiver.poll() is closing  # no new data: the latest is kept
 
+    def test_deadman_drops_to_zero_when_datagrams_stop(self):
+        """The mock amplifier's own interlock: a sender that dies at high voltage (SIGKILL, power
+        loss) leaves 0 V after the dead-man timeout, not its last datagram."""
+        now = [10.0]
+        with MockAmplifierReceiver(port=0, clock=lambda: now[0], deadman_timeout_s=0.2) as receiver:
+            assert receiver.applied_voltage_V() == 0.0  # nothing received yet: 0 V
+            backend = MockAmplifierBackend(receiver.port, max_voltage_V=3000.0)
+            backend.open()
+            backend.write_voltage(3000.0)  # ... and the sender dies without a word
+            _poll_until(receiver, lambda r: r is not None and r.voltage_V == 3000.0)
+            assert receiver.applied_voltage_V() == 3000.0
+            now[0] += 0.19
+            assert receiver.applied_voltage_V() == 3000.0 and not receiver.deadman_expired()
+            now[0] += 0.02
+            assert receiver.deadman_expired() and receiver.applied_voltage_V() == 0.0
+            assert receiver.applied_voltage_V() == 0.0 and receiver.deadman_trip_count == 1
+            backend.write_voltage(1000.0)  # a live sender re-arms it
+            _poll_until(receiver, lambda r: r is not None and r.voltage_V == 1000.0)
+            assert receiver.applied_voltage_V() == 1000.0
+            backend._close_socket()
+        with pytest.raises(AmplifierBackendError, match="deadman_timeout_s"):
+            MockAmplifierReceiver(port=0, deadman_timeout_s=0.0)
+
     def test_garbage_and_stale_datagrams_are_counted_and_ignored(self):
         fake_now = [100.0]
         with MockAmplifierReceiver(port=0, clock=lambda: fake_now[0]) as receiver, \
@@ -207,156 +236,22 @@ class TestUdpMockPair:
 
 
 # =========================================================================== fake uldaq
-class FakeRig:
-    """State of the fake hardware shared by the fake uldaq objects; records every call."""
+def _load_fake():
+    import importlib.util
+    from pathlib import Path
 
-    def __init__(self, uldaq):
-        self.uldaq = uldaq
-        self.calls: list[tuple] = []
-        self.descriptors = [uldaq.DaqDeviceDescriptor("USB-1208HS-4AO", "01ABCDEF")]
-        self.ao_ranges = [uldaq.Range.UNI10VOLTS, uldaq.Range.BIP10VOLTS]
-        self.ao_channels = 4
-        self.has_ao = True
-        self.has_ai = True
-        self.unplugged = False
-        self.connect_error = None
-        self.inventory_error = None
-        self.monitor_daq_V = 0.0
-        self.connected = False
+    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).with_name("fake_uldaq.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def make_fake_uldaq() -> tuple[types.ModuleType, FakeRig]:
-    """A stand-in for the uldaq package with its real names and signatures (see the
-    MCC sources: uldaq/ao_device.py, daq_device.py, utils.py, ul_enums.py)."""
-    ul = types.ModuleType("uldaq")
-
-    class ULError(enum.IntEnum):
-        DEV_NOT_FOUND = 6
-        DEV_NOT_CONNECTED = 7
-        DEAD_DEV = 8
-        USB_DEV_NO_PERMISSION = 4
-        BAD_RANGE = 13
-        BAD_AO_CHAN = 55
-        BAD_DA_VAL = 56
-
-    class InterfaceType(enum.IntEnum):
-        USB = 1
-        BLUETOOTH = 2
-        ETHERNET = 4
-        ANY = 7
-
-    class Range(enum.IntEnum):
-        BIP10VOLTS = 5
-        BIP5VOLTS = 6
-        UNI10VOLTS = 1005
-        UNI5VOLTS = 1006
-        UNI1VOLTS = 1011
-
-    class AOutFlag(enum.IntEnum):
-        DEFAULT = 0
-
-    class AInFlag(enum.IntEnum):
-        DEFAULT = 0
-
-    class AiInputMode(enum.IntEnum):
-        DIFFERENTIAL = 1
-        SINGLE_ENDED = 2
-
-    class ULException(Exception):
-        def __init__(self, error_code):
-            self.error_code = ULError(error_code)
-            self.error_message = self.error_code.name.replace("_", " ").lower()
-
-        def __str__(self):
-            return f"{self.error_code}: {self.error_message}"
-
-    class DaqDeviceDescriptor:
-        def __init__(self, product_name, unique_id):
-            self.product_name = product_name
-            self.unique_id = unique_id
-            self.dev_string = product_name
-
-    range_limits = {Range.BIP10VOLTS: (-10.0, 10.0), Range.BIP5VOLTS: (-5.0, 5.0),
-                    Range.UNI10VOLTS: (0.0, 10.0), Range.UNI5VOLTS: (0.0, 5.0), Range.UNI1VOLTS: (0.0, 1.0)}
-
-    class AoInfo:
-        def get_num_chans(self):
-            return rig.ao_channels
-
-        def get_ranges(self):
-            return list(rig.ao_ranges)
-
-    class AoDevice:
-        def get_info(self):
-            return AoInfo()
-
-        def a_out(self, channel, voltage_range, flags, data):
-            rig.calls.append(("a_out", channel, voltage_range, flags, data))
-            assert isinstance(voltage_range, Range) and isinstance(flags, AOutFlag)
-            assert isinstance(data, float)
-            if rig.unplugged or not rig.connected:
-                raise ULException(ULError.DEV_NOT_CONNECTED)
-            if not 0 <= channel < rig.ao_channels:
-                raise ULException(ULError.BAD_AO_CHAN)
-            if voltage_range not in rig.ao_ranges:
-                raise ULException(ULError.BAD_RANGE)
-            low, high = range_limits[voltage_range]
-            if not low <= data <= high:
-                raise ULException(ULError.BAD_DA_VAL)
-
-    class AiDevice:
-        def a_in(self, channel, input_mode, voltage_range, flags):
-            rig.calls.append(("a_in", channel, input_mode, voltage_range, flags))
-            assert isinstance(input_mode, AiInputMode) and isinstance(voltage_range, Range)
-            assert isinstance(flags, AInFlag)
-            if rig.unplugged:
-                raise ULException(ULError.DEAD_DEV)
-            return rig.monitor_daq_V
-
-    class DaqDevice:
-        def __init__(self, descriptor):
-            rig.calls.append(("DaqDevice", descriptor.unique_id))
-
-        def connect(self):
-            rig.calls.append(("connect",))
-            if rig.connect_error is not None:
-                raise ULException(rig.connect_error)
-            rig.connected = True
-
-        def is_connected(self):
-            return rig.connected and not rig.unplugged
-
-        def get_ao_device(self):
-            return AoDevice() if rig.has_ao else None
-
-        def get_ai_device(self):
-            return AiDevice() if rig.has_ai else None
-
-        def disconnect(self):
-            rig.calls.append(("disconnect",))
-            if not rig.connected or rig.unplugged:
-                raise ULException(ULError.DEV_NOT_CONNECTED)
-            rig.connected = False
-
-        def release(self):
-            rig.calls.append(("release",))
-
-    def get_daq_device_inventory(interface_type, number_of_devices=100):
-        rig.calls.append(("get_daq_device_inventory", interface_type))
-        if rig.inventory_error is not None:
-            raise ULException(rig.inventory_error)
-        return list(rig.descriptors)
-
-    for obj in (ULError, InterfaceType, Range, AOutFlag, AInFlag, AiInputMode, ULException,
-                DaqDeviceDescriptor, DaqDevice, get_daq_device_inventory):
-        setattr(ul, obj.__name__, obj)
-    rig = FakeRig(ul)
-    return ul, rig
+fake = _load_fake()
 
 
 @pytest.fixture
 def fake_uldaq(monkeypatch):
-    ul, rig = make_fake_uldaq()
+    ul, rig = fake.make()
     monkeypatch.setitem(sys.modules, "uldaq", ul)
     return rig
 
@@ -369,7 +264,7 @@ def quiet_backend(**kwargs) -> UldaqAmplifierBackend:
 
 
 def a_out_values(rig) -> list[float]:
-    return [call[4] for call in rig.calls if call[0] == "a_out"]
+    return rig.a_out_values()
 
 
 class TestUldaqConfiguration:
@@ -382,31 +277,22 @@ class TestUldaqConfiguration:
             with pytest.raises(AmplifierBackendError, match="Range"):
                 parse_daq_range(bad)  # type: ignore[arg-type]
 
-    def test_range_times_gain_above_max_warns(self):
+    def test_named_range_times_gain_above_max_warns(self):
         with pytest.warns(AmplifierRangeWarning, match="10000 V, above max_voltage_V = 2430 V"):
-            backend = UldaqAmplifierBackend(max_voltage_V=2430.0)
+            backend = UldaqAmplifierBackend(ao_range="BIP10VOLTS", max_voltage_V=2430.0)
         assert backend.daq_limit_V == pytest.approx(2.43)
 
     def test_strict_range_check_refuses(self):
         with pytest.raises(AmplifierBackendError, match="strict_range_check"):
-            UldaqAmplifierBackend(max_voltage_V=2430.0, strict_range_check=True)
-
-    def test_bipolar_range_counts_its_magnitude(self):
-        with pytest.warns(AmplifierRangeWarning, match="BIP10VOLTS"):
-            UldaqAmplifierBackend(ao_range="BIP10VOLTS", amplifier_gain_V_per_V=300.0, max_voltage_V=2500.0)
+            UldaqAmplifierBackend(ao_range="BIP10VOLTS", max_voltage_V=2430.0, strict_range_check=True)
 
     def test_matching_range_and_gain_do_not_warn(self):
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             backend = UldaqAmplifierBackend(ao_range="UNI5VOLTS", amplifier_gain_V_per_V=500.0,
                                             max_voltage_V=2500.0, strict_range_check=True)
-        assert backend.daq_limit_V == 5.0
-
-    def test_unreachable_max_warns_and_clamps_to_range(self):
-        with pytest.warns(AmplifierRangeWarning, match="unreachable"):
-            backend = UldaqAmplifierBackend(ao_range="UNI1VOLTS", max_voltage_V=2430.0)
-        assert backend.daq_limit_V == 1.0
-        assert backend.high_voltage_to_daq_V(2000.0) == 1.0
+            auto = UldaqAmplifierBackend(max_voltage_V=2500.0)  # "auto": chosen on open
+        assert backend.daq_limit_V == 5.0 and auto.daq_limit_V is None and auto.ao_range is None
 
     def test_max_voltage_is_required(self):
         with pytest.raises(TypeError):
@@ -425,11 +311,82 @@ class TestUldaqConfiguration:
             (dict(monitor_channel=-2), "monitor_channel"),
             (dict(ao_range="TEN_VOLTS"), "Range"),
             (dict(monitor_gain_V_per_V=0.0), "monitor_gain_V_per_V"),
+            (dict(enable_bit=-1), "enable_bit"),
+            (dict(amplifier_max_output_V=0.0), "amplifier_max_output_V"),
         ],
     )
     def test_invalid_configuration(self, kwargs, field):
         with pytest.raises(AmplifierBackendError, match=field):
             quiet_backend(**kwargs)
+
+
+# =========================================================================== rig description (pure)
+def expect(**kwargs) -> AmplifierRigExpectation:
+    kwargs.setdefault("backend", "uldaq")
+    kwargs.setdefault("ceiling_V", 3150.0)
+    return AmplifierRigExpectation(**kwargs)
+
+
+class TestRigDescription:
+    @pytest.mark.parametrize("product", sorted(fake.BOARDS))
+    def test_known_boards_table_matches_what_the_boards_report(self, fake_uldaq, product):
+        fake_uldaq.set_board(product)
+        fake_uldaq.descriptors = [fake_uldaq.uldaq.DaqDeviceDescriptor(product, "SN1")]
+        assert query_uldaq_board() == DaqBoardInfo.known(product, "SN1")
+        assert not any(c[0] in ("a_out", "d_bit_out") for c in fake_uldaq.calls)  # a query writes nothing
+        assert fake_uldaq.calls[-1] == ("release",)
+
+    @pytest.mark.parametrize("product, chosen", [("USB-1208HS-4AO", "BIP10VOLTS"), ("USB-1608GX-2AO", "BIP10VOLTS"),
+                                                 ("USB-1208FS-Plus", "UNI5VOLTS"), ("USB-202", "UNI5VOLTS")])
+    def test_range_is_chosen_from_what_the_board_offers(self, product, chosen):
+        d = describe_amplifier_rig(expect(), DaqBoardInfo.known(product, "SN1"))
+        assert d.ok and d.ao_range == chosen and d.needed_daq_V == pytest.approx(3.15)
+        assert any("DAQ: " + product in line for line in d.lines())
+        assert choose_daq_range(["BIP10VOLTS", "UNI10VOLTS", "UNI5VOLTS"], 3.15) == "UNI5VOLTS"
+        assert choose_daq_range(["BIP10VOLTS", "UNI10VOLTS"], 3.15) == "UNI10VOLTS"  # unipolar wins a tie
+
+    def test_no_range_covers_the_needed_output(self):
+        d = describe_amplifier_rig(expect(ceiling_V=6000.0), DaqBoardInfo.known("USB-1208FS-Plus", "SN1"))
+        assert not d.ok and d.ao_range is None
+        assert re.search(r"no analog output range of USB-1208FS-Plus \(SN1\) \(ranges \['UNI5VOLTS'\]\) covers "
+                         r"the needed 0..6 V", d.mismatches[0])
+        assert "no voltage will be applied" in d.lines()[-1]
+
+    def test_named_range_must_be_offered_and_cover(self):
+        d = describe_amplifier_rig(expect(ao_range="UNI10VOLTS"), DaqBoardInfo.known("USB-1208HS-4AO", "SN1"))
+        assert not d.ok and "UNI10VOLTS is not offered by USB-1208HS-4AO (SN1); it offers ['BIP10VOLTS']" in \
+            d.mismatches[0]
+
+    def test_gain_slip_is_caught(self):
+        """The reproduction: gain 100 configured on a 1000 V/V amplifier (3150 V -> 10 kV)."""
+        d = describe_amplifier_rig(expect(amplifier_gain_V_per_V=100.0), DaqBoardInfo.known("USB-1208HS-4AO"))
+        text = " ".join(d.mismatches)
+        assert "amplifier_gain_V_per_V = 100 V/V x amplifier_input_full_scale_V = 10 V = 1000 V" in text
+        assert "covers the needed 0..31.5 V" in text
+        d = describe_amplifier_rig(expect(backend="mock", amplifier_gain_V_per_V=100.0))  # whatever the backend
+        assert not d.ok and "gain slip" in d.mismatches[0]
+
+    def test_ceiling_above_the_amplifier_rating_is_a_membrane_slip(self):
+        """The reproduction: A1 thickness x10 gives a 24.3 kV limit on a 10 kV amplifier."""
+        d = describe_amplifier_rig(expect(backend="mock", ceiling_V=24300.0))
+        assert not d.ok and re.search(r"ceiling 24300.0 V .* rated output amplifier_max_output_V = 10000 V: a "
+                                      r"thickness or breakdown-field slip", d.mismatches[0])
+
+    def test_monitor_and_enable_are_checked_against_the_board(self):
+        board = DaqBoardInfo.known("USB-1208HS-4AO", "SN1")
+        d = describe_amplifier_rig(expect(monitor_channel=1, enable_port="AUXPORT", enable_bit=3), board)
+        assert d.ok and d.monitor_range == "BIP10VOLTS"  # covers 10 kV / 1000 V/V; bipolar shows a polarity error
+        bad = describe_amplifier_rig(expect(monitor_channel=8, monitor_input_mode="SINGLE_ENDED", enable_port="FIRSTPORTA",
+                                            enable_bit=3), board)
+        assert any("monitor_channel = 8" in m and "0..7" in m for m in bad.mismatches)
+        assert any("enable_port = FIRSTPORTA" in m and "AUXPORT" in m for m in bad.mismatches)
+        bad = describe_amplifier_rig(expect(monitor_channel=0, monitor_input_mode="DIFFERENTIAL", enable_port="AUXPORT",
+                                            enable_bit=16, monitor_gain_V_per_V=100.0), board)
+        assert any("enable_bit = 16" in m for m in bad.mismatches)
+        assert any("covers the monitor signal 0..100 V" in m for m in bad.mismatches)
+        for backend in ("mock", "inprocess"):
+            d = describe_amplifier_rig(expect(backend=backend, monitor_channel=0, enable_port="AUXPORT"))
+            assert len(d.mismatches) == 2 and all("uldaq only" in m for m in d.mismatches)
 
 
 class TestUldaqBackend:
@@ -438,19 +395,21 @@ class TestUldaqBackend:
         backend = quiet_backend()
         backend.open()
         assert backend.is_open and "USB-1208HS-4AO" in backend.device_description
+        assert backend.ao_range == "BIP10VOLTS" and backend.rig_description.ok  # the only range of the board
         assert fake_uldaq.calls[:4] == [
             ("get_daq_device_inventory", ul.InterfaceType.USB),
             ("DaqDevice", "01ABCDEF"),
             ("connect",),
-            ("a_out", 0, ul.Range.UNI10VOLTS, ul.AOutFlag.DEFAULT, 0.0),  # 0 V on open
+            ("a_out", 0, ul.Range.BIP10VOLTS, ul.AOutFlag.DEFAULT, 0.0),  # 0 V on open
         ]
         backend.write_voltage(1500.0)
         backend.write_voltage(2430.0)
         assert a_out_values(fake_uldaq) == pytest.approx([0.0, 1.5, 2.43], rel=1e-12)
         assert backend.last_daq_V == pytest.approx(2.43)
+        assert fake_uldaq.amplifier_output_V == pytest.approx(2430.0)
         backend.close()
         assert fake_uldaq.calls[-3:] == [
-            ("a_out", 0, ul.Range.UNI10VOLTS, ul.AOutFlag.DEFAULT, 0.0),  # 0 V on close
+            ("a_out", 0, ul.Range.BIP10VOLTS, ul.AOutFlag.DEFAULT, 0.0),  # 0 V on close
             ("disconnect",),
             ("release",),
         ]
@@ -458,6 +417,14 @@ class TestUldaqBackend:
         n_calls = len(fake_uldaq.calls)
         backend.close()  # idempotent
         assert len(fake_uldaq.calls) == n_calls
+
+    @pytest.mark.parametrize("product", sorted(fake.BOARDS))
+    def test_every_real_board_drives_the_membrane_limit(self, fake_uldaq, product):
+        fake_uldaq.set_board(product)
+        with quiet_backend(max_voltage_V=3150.0) as backend:
+            backend.write_voltage(3150.0)
+            assert fake_uldaq.amplifier_output_V == pytest.approx(3150.0)
+            assert backend.ao_range == ("BIP10VOLTS" if "AO" in product else "UNI5VOLTS")
 
     @pytest.mark.parametrize("bad", [math.nan, math.inf, -1.0, 2430.5, 1e4])
     def test_refused_values_never_reach_the_daq(self, fake_uldaq, bad):
@@ -468,20 +435,16 @@ class TestUldaqBackend:
             assert a_out_values(fake_uldaq) == pytest.approx([0.0, 1.0])
             assert backend.last_written_V == 1000.0
 
-    def test_output_is_clamped_to_the_ao_range(self, fake_uldaq):
-        ul = fake_uldaq.uldaq
-        fake_uldaq.ao_ranges = [ul.Range.UNI1VOLTS]
-        # The fake raises on out-of-range values, so the clamp is what makes this pass.
-        with pytest.raises(ul.ULException):
-            ul.DaqDevice(fake_uldaq.descriptors[0]).get_ao_device().a_out(0, ul.Range.UNI1VOLTS,
-                                                                          ul.AOutFlag.DEFAULT, 1.5)
-        with quiet_backend(ao_range="UNI1VOLTS") as backend:
-            backend.write_voltage(2000.0)
-            backend.write_voltage(500.0)
-        assert a_out_values(fake_uldaq)[-3:] == pytest.approx([1.0, 0.5, 0.0])
+    def test_daq_output_never_exceeds_ceiling_over_gain(self, fake_uldaq):
+        with quiet_backend() as backend:
+            assert backend.daq_limit_V == pytest.approx(2.43)
+            assert backend.high_voltage_to_daq_V(1e9) == pytest.approx(2.43)  # clamp below the write check
+            backend.write_voltage(2430.0)
+        assert max(a_out_values(fake_uldaq)) == pytest.approx(2.43)
 
     def test_channel_and_custom_gain(self, fake_uldaq):
-        with quiet_backend(channel=3, amplifier_gain_V_per_V=300.0, max_voltage_V=3000.0) as backend:
+        with quiet_backend(channel=3, amplifier_gain_V_per_V=300.0, amplifier_max_output_V=3000.0,
+                           max_voltage_V=3000.0) as backend:
             backend.write_voltage(1500.0)
         a_outs = [c for c in fake_uldaq.calls if c[0] == "a_out"]
         assert {c[1] for c in a_outs} == {3}
@@ -518,20 +481,25 @@ class TestUldaqBackend:
         assert fake_uldaq.calls[-1] == ("release",)
         assert not backend.is_open
 
-    def test_unsupported_range_is_refused_on_open(self, fake_uldaq):
-        ul = fake_uldaq.uldaq
-        fake_uldaq.ao_ranges = [ul.Range.BIP10VOLTS]
-        with pytest.raises(AmplifierBackendError, match=r"UNI10VOLTS is not supported.*BIP10VOLTS"):
-            quiet_backend().open()
+    def test_board_without_a_covering_range_refuses_to_start(self, fake_uldaq):
+        """The default UNI10VOLTS of old does not exist on these boards: named ranges must be offered,
+        and 'auto' refuses when no offered range covers the needed output, naming board and ranges."""
+        fake_uldaq.set_board("USB-1208HS-4AO")
+        with pytest.raises(AmplifierBackendError, match=r"USB-1208HS-4AO \(01ABCDEF\) does not match.*UNI10VOLTS "
+                                                        r"is not offered.*\['BIP10VOLTS'\]"):
+            quiet_backend(ao_range="UNI10VOLTS").open()
+        fake_uldaq.set_board("USB-1208FS-Plus")
+        with pytest.raises(AmplifierBackendError, match=r"no analog output range of USB-1208FS-Plus .*\['UNI5VOLTS'\]"):
+            quiet_backend(max_voltage_V=6000.0).open()
         assert fake_uldaq.calls[-2:] == [("disconnect",), ("release",)]
-        assert a_out_values(fake_uldaq) == []
+        assert a_out_values(fake_uldaq) == []  # nothing was written
 
     def test_missing_channel_or_ao_subsystem(self, fake_uldaq):
-        fake_uldaq.ao_channels = 2
-        with pytest.raises(AmplifierBackendError, match="'channel' = 2.*2 analog output"):
+        fake_uldaq.set_board("USB-1608GX-2AO")
+        with pytest.raises(AmplifierBackendError, match="uldaq_channel = 2.*channels 0..1"):
             quiet_backend(channel=2).open()
         fake_uldaq.has_ao = False
-        with pytest.raises(AmplifierBackendError, match="no analog output"):
+        with pytest.raises(AmplifierBackendError, match="has no analog output"):
             quiet_backend().open()
         assert fake_uldaq.calls[-1] == ("release",)
 
@@ -569,23 +537,93 @@ class TestUldaqBackend:
         assert backend.faulted is None and a_out_values(fake_uldaq)[-1] == pytest.approx(0.01)
         backend.close()
 
-    def test_monitor_reading(self, fake_uldaq):
+    def test_monitor_reads_the_amplifier_output(self, fake_uldaq):
         ul = fake_uldaq.uldaq
         with quiet_backend() as backend:
-            assert backend.read_monitor_V() is None  # no monitor channel configured
-        fake_uldaq.monitor_daq_V = 1.25
+            assert backend.read_monitor_V() is None and not backend.has_monitor  # no monitor channel configured
+        fake_uldaq.monitor_wiring = (ul.AiInputMode.SINGLE_ENDED, 1)
         with quiet_backend(monitor_channel=1) as backend:
+            backend.write_voltage(1250.0)
             assert backend.read_monitor_V() == pytest.approx(1250.0)
         assert ("a_in", 1, ul.AiInputMode.SINGLE_ENDED, ul.Range.BIP10VOLTS, ul.AInFlag.DEFAULT) in fake_uldaq.calls
-        with quiet_backend(monitor_channel=1, monitor_gain_V_per_V=2000.0) as backend:
-            assert backend.read_monitor_V() == pytest.approx(2500.0)
+        fake_uldaq.real_gain_V_per_V = 10000.0  # a x10 gain slip: the monitor shows the truth
+        with quiet_backend(monitor_channel=1) as backend:
+            backend.write_voltage(500.0)
+            assert backend.read_monitor_V() == pytest.approx(5000.0)
             fake_uldaq.unplugged = True
             with pytest.raises(AmplifierBackendError, match="monitor.*connection was lost"):
                 backend.read_monitor_V()
             fake_uldaq.unplugged = False
         fake_uldaq.has_ai = False
-        with pytest.raises(AmplifierBackendError, match="no analog input"):
+        with pytest.raises(AmplifierBackendError, match="analog input modes \\[\\]"):
             quiet_backend(monitor_channel=0).open()
+
+    @pytest.mark.parametrize("product, port, config_call",
+                             [("USB-1208HS-4AO", "AUXPORT", "d_config_bit"),
+                              ("USB-1208FS-Plus", "FIRSTPORTA", "d_config_port")])
+    def test_enable_line(self, fake_uldaq, product, port, config_call):
+        ul = fake_uldaq.uldaq
+        fake_uldaq.set_board(product)
+        key = (ul.DigitalPortType[port], 3)
+        fake_uldaq.enable_wiring = key
+        backend = quiet_backend(enable_port=port, enable_bit=3)
+        backend.open()
+        assert any(c[0] == config_call for c in fake_uldaq.calls)
+        assert fake_uldaq.bit_levels[key] == 0 and not fake_uldaq.amplifier_enabled  # inactive after open
+        backend.set_output_enabled(True)
+        backend.write_voltage(1000.0)
+        assert fake_uldaq.amplifier_output_V == pytest.approx(1000.0)
+        backend.close()
+        assert fake_uldaq.bit_levels[key] == 0 and fake_uldaq.amplifier_output_V == 0.0
+
+    def test_enable_heartbeat_toggles_while_enabled(self, fake_uldaq):
+        ul = fake_uldaq.uldaq
+        key = (ul.DigitalPortType.AUXPORT, 0)
+        with quiet_backend(enable_port="AUXPORT", enable_bit=0, enable_heartbeat=True) as backend:
+            backend.write_voltage(0.0)
+            levels = [c[3] for c in fake_uldaq.calls if c[0] == "d_bit_out"]
+            assert levels == [0]  # disabled: rests inactive, no toggling
+            backend.set_output_enabled(True)
+            for _ in range(4):
+                backend.write_voltage(100.0)
+            levels = [c[3] for c in fake_uldaq.calls if c[0] == "d_bit_out"]
+            assert levels[-5:] == [1, 0, 1, 0, 1]
+        assert fake_uldaq.bit_levels[key] == 0
+
+
+class TestFakeValidatesLikeTheLibrary:
+    """The fake must refuse what libuldaq refuses, or the backend tests prove nothing."""
+
+    def test_a_in_and_a_out_arguments(self):
+        ul, rig = fake.make("USB-1208HS-4AO")
+        device = ul.DaqDevice(rig.descriptors[0])
+        ai, ao = device.get_ai_device(), device.get_ao_device()
+        E = ul.ULError
+        cases = [
+            (lambda: ai.a_in(0, ul.AiInputMode.PSEUDO_DIFFERENTIAL, ul.Range.BIP10VOLTS, ul.AInFlag.DEFAULT),
+             E.BAD_INPUT_MODE),
+            (lambda: ai.a_in(4, ul.AiInputMode.DIFFERENTIAL, ul.Range.BIP10VOLTS, ul.AInFlag.DEFAULT), E.BAD_AI_CHAN),
+            (lambda: ai.a_in(0, ul.AiInputMode.SINGLE_ENDED, ul.Range.BIP20VOLTS, ul.AInFlag.DEFAULT), E.BAD_RANGE),
+            (lambda: ai.a_in(0, ul.AiInputMode.SINGLE_ENDED, ul.Range.BIP10VOLTS, ul.AInFlag.DEFAULT),
+             E.NO_CONNECTION_ESTABLISHED),
+            (lambda: ao.a_out(4, ul.Range.BIP10VOLTS, ul.AOutFlag.DEFAULT, 1.0), E.BAD_AO_CHAN),
+            (lambda: ao.a_out(0, ul.Range.UNI10VOLTS, ul.AOutFlag.DEFAULT, 1.0), E.BAD_RANGE),
+            (lambda: ao.a_out(0, ul.Range.BIP10VOLTS, ul.AOutFlag.DEFAULT, 10.5), E.BAD_DA_VAL),
+        ]
+        for call, code in cases:
+            with pytest.raises(ul.ULException) as info:
+                call()
+            assert info.value.error_code == code
+        device.connect()
+        assert ai.a_in(0, ul.AiInputMode.SINGLE_ENDED, ul.Range.UNI10VOLTS, ul.AInFlag.DEFAULT) == 0.0
+        dio = device.get_dio_device()
+        with pytest.raises(ul.ULException) as info:
+            dio.d_bit_out(ul.DigitalPortType.AUXPORT, 0, 1)  # not configured as output
+        assert info.value.error_code == E.WRONG_DIG_CONFIG
+        rig.set_board("USB-1208FS-Plus")
+        with pytest.raises(ul.ULException) as info:
+            dio.d_config_bit(ul.DigitalPortType.FIRSTPORTA, 0, ul.DigitalDirection.OUTPUT)  # IO port: no bits
+        assert info.value.error_code == E.BAD_DIG_OPERATION
 
 
 class _BrokenLibraryFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
