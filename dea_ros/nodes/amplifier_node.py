@@ -2,163 +2,383 @@
 
 Lifecycle (``ros2 lifecycle set /amplifier_node configure|activate|deactivate|cleanup``):
 
-* unconfigured -> ``configure``: derives the safety limits, opens the backend (which writes 0 V);
+* unconfigured -> ``configure``: opens the backend (which writes 0 V) with the limits decided
+  at start-up; refuses (stays unconfigured, 0 V) on any configuration or hardware mismatch;
 * inactive: output 0 V (after a ramp-down); commands are rejected (counted);
 * ``activate``: commands on ``voltage_cmd`` (std_msgs/Float64, V) are followed within the limits;
-* ``deactivate`` / ``cleanup`` / ``shutdown`` / SIGINT / SIGTERM: ramp to 0 V.
+* ``deactivate`` / ``cleanup`` / ``shutdown`` / SIGINT / SIGTERM / SIGHUP / SIGQUIT / an
+  exception in a callback / executor shutdown: ramp to 0 V.
+
+Start-up, not run time, decides every limit. All parameters are read-only; a set-parameters
+callback refuses any change (``use_sim_time`` included) with the reason. The membrane file is
+read once, at construction; the voltage ceiling derived then (``enforced_max_voltage_V``, a
+read-only parameter reporting what is enforced) is the only one a later configure uses.
 
 Every output goes through :class:`dea_ros.hardware.amplifier_safety.SafeVoltageController`:
-never above ``max_voltage_V`` (derived from the membrane: margin x breakdown field x
-thickness; a configured value above that is refused), never faster than
-``slew_rate_V_per_s``, a watchdog ramps to 0 V when commands stop for
-``watchdog_timeout_s``, and NaN, inf, negative and out-of-range commands are rejected,
-logged (throttled) and counted without moving the output.
+never above the ceiling (margin x breakdown field x thickness of the membrane, or the lower
+``max_voltage_V``), never faster than ``slew_rate_V_per_s``, a watchdog ramps to 0 V when
+commands stop for ``watchdog_timeout_s``, and NaN, inf, negative and out-of-range commands are
+rejected, logged (throttled) and counted without moving the output.
+
+Time: slew, ramp and watchdog run on ``time.monotonic`` (the update timer is a steady timer):
+no ROS time change can stall or jump them. Simulated time (``use_sim_time``, set at start-up)
+is accepted only with the ``mock`` backend; then the update follows the simulated clock (the
+mock rig runs lockstep with it), each update advancing the controller by at most one update
+period (:class:`~dea_ros.hardware.amplifier_safety.ControlClock`), and a wall-clock backstop
+ramps to 0 V when the simulated clock stalls for ``SIM_CLOCK_STALL_S``.
 
 Backends (parameter ``backend``): ``mock`` (UDP to mock_hardware_node), ``uldaq``
-(Measurement Computing DAQ analog output into the amplifier input, ``amplifier_gain_V_per_V``),
+(Measurement Computing DAQ analog output into the amplifier input, ``amplifier_gain_V_per_V``;
+optionally the amplifier's monitor on an analog input and an enable/interlock digital output),
 ``inprocess`` (tests). The applied voltage is published on ``voltage``
 (sensor_msgs/BatteryState, ``voltage`` in V, stamped when applied, ``present`` = output enabled).
 """
 from __future__ import annotations
 
+import functools
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
 from ..hardware.amplifier_backends import (
     AmplifierBackendError,
+    AmplifierRigExpectation,
     InProcessAmplifierBackend,
     MockAmplifierBackend,
     UldaqAmplifierBackend,
+    describe_amplifier_rig,
 )
-from ..hardware.amplifier_safety import SafeVoltageController, SafetyConfigError, SafetyLimits, drive_to_zero
+from ..hardware.amplifier_safety import (
+    ControlClock,
+    SafeVoltageController,
+    SafetyConfigError,
+    SafetyLimits,
+    drive_to_zero,
+)
 from ..model import ParameterError, load_parameters
 from .common import (
     COMMAND_QOS,
     SENSOR_QOS,
     TOPIC_VOLTAGE,
     TOPIC_VOLTAGE_CMD,
-    declare_float,
-    declare_int,
-    declare_str,
     make_voltage_state,
     publish_diagnostic,
 )
 
-__all__ = ["AmplifierNode", "main"]
+__all__ = ["AmplifierNode", "main", "PARAMETERS", "SIM_CLOCK_STALL_S"]
+
+#: Simulated time: when the simulated clock has not advanced an update for this long on the
+#: wall clock, the output is ramped to 0 V on the wall clock (latched until deactivate/activate).
+SIM_CLOCK_STALL_S = 2.0
+BACKENDS = ("mock", "uldaq", "inprocess")
+
+#: name -> (default, description). Every one is read-only: fixed at start-up.
+PARAMETERS = {
+    "backend": ("mock", "mock (UDP to mock_hardware_node), uldaq (MCC DAQ) or inprocess"),
+    "params_file": ("A2", "membrane (preset or YAML, with breakdown_field_V_per_m) whose breakdown limit "
+                          "bounds the output; read once at start-up"),
+    "margin": (0.9, "fraction of the breakdown voltage allowed, in (0, 1)"),
+    "max_voltage_V": (0.0, "maximum output, V (0: the membrane limit; above it is refused)"),
+    "slew_rate_V_per_s": (100000.0, "largest rate of change of the output, V/s (1 .. 1e7)"),
+    "ramp_down_rate_V_per_s": (10000.0, "rate of every ramp to 0 V, V/s (<= slew; 0 V within 10 s after "
+                                        "the watchdog)"),
+    "watchdog_timeout_s": (0.5, "ramp to 0 V after this long without a command, s"),
+    "update_rate_hz": (1000.0, "output update and publication rate, Hz (1 .. 20000)"),
+    "mock_port": (47650, "UDP port of mock_hardware_node (backend mock)"),
+    "uldaq_unique_id": ("", "DAQ unique id (empty: the first USB device)"),
+    "uldaq_channel": (0, "analog output channel wired to the amplifier input"),
+    "uldaq_range": ("auto", "analog output range: auto (the smallest the board offers that covers "
+                            "0 .. ceiling / gain) or a uldaq Range name"),
+    "amplifier_gain_V_per_V": (1000.0, "amplifier gain, V/V (TREK 10/10B-HS: 1000)"),
+    "amplifier_max_output_V": (10000.0, "rated output of the amplifier, V (TREK 10/10B-HS: 10000); the ceiling "
+                                        "may not exceed it"),
+    "amplifier_input_full_scale_V": (10.0, "amplifier input for the rated output, V (TREK: 10); gain x full "
+                                           "scale must equal the rated output"),
+    "monitor_channel": (-1, "uldaq analog input wired to the amplifier's voltage monitor (-1: none)"),
+    "monitor_gain_V_per_V": (0.0, "high volts per monitor volt (0: the amplifier gain)"),
+    "monitor_range": ("auto", "monitor input range: auto or a uldaq Range name"),
+    "monitor_input_mode": ("SINGLE_ENDED", "monitor input mode: SINGLE_ENDED or DIFFERENTIAL"),
+    "monitor_tolerance_V": (50.0, "monitor vs command: allowed difference, V (plus the fraction below)"),
+    "monitor_tolerance_fraction": (0.05, "monitor vs command: allowed difference as a fraction of the command"),
+    "enable_port": ("", "uldaq digital port of the amplifier's enable/interlock input ('': none), e.g. AUXPORT"),
+    "enable_bit": (0, "bit of enable_port"),
+    "enable_active_high": (True, "enable_port level that enables the amplifier"),
+    "enable_heartbeat": (False, "toggle the enable line on every update while enabled (for a hardware "
+                                "watchdog relay that drops the enable when the toggling stops)"),
+}
+
+
+def _descriptor(description: str) -> ParameterDescriptor:
+    return ParameterDescriptor(description=description, read_only=True)
 
 
 class AmplifierNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("amplifier_node", **kwargs)
-        declare_str(self, "backend", "mock", "mock (UDP to mock_hardware_node), uldaq (MCC DAQ) or inprocess")
-        declare_str(self, "params_file", "A2", "membrane (preset or YAML) whose breakdown limit bounds the output")
-        declare_float(self, "margin", 0.9, "fraction of the breakdown voltage allowed", 0.05, 1.0)
-        declare_float(self, "max_voltage_V", 0.0,
-                      "maximum output, V (0: the membrane limit; above it is refused)", 0.0, 30000.0)
-        declare_float(self, "slew_rate_V_per_s", 100000.0, "largest rate of change of the output, V/s", 1.0, 1e7)
-        declare_float(self, "ramp_down_rate_V_per_s", 10000.0, "rate of every ramp to 0 V, V/s", 1.0, 1e7)
-        declare_float(self, "watchdog_timeout_s", 0.5, "ramp to 0 V after this long without a command, s",
-                      0.001, 60.0)
-        declare_float(self, "update_rate_hz", 1000.0, "output update and publication rate, Hz", 1.0, 20000.0)
-        declare_int(self, "mock_port", 47650, "UDP port of mock_hardware_node (backend mock)", 1, 65535)
-        declare_str(self, "uldaq_unique_id", "", "DAQ unique id (empty: the first USB device)")
-        declare_int(self, "uldaq_channel", 0, "analog output channel", 0, 15)
-        declare_float(self, "amplifier_gain_V_per_V", 1000.0, "amplifier gain (TREK 10/10B-HS: 1000)", 1.0, 1e5)
-        declare_str(self, "uldaq_range", "UNI10VOLTS", "analog output range (uldaq Range name)")
+        for name, (default, description) in PARAMETERS.items():
+            self.declare_parameter(name, default, _descriptor(description))
+        #: the start-up values: the only ones this node ever uses
+        self.config = {name: self.get_parameter(name).value for name in PARAMETERS}
+        self.sim_time = bool(self.get_parameter("use_sim_time").value)
+        self.add_on_set_parameters_callback(self._refuse_parameter_changes)
+        self.startup_error: str | None = None
+        self.limits: SafetyLimits | None = None
+        self.expected: AmplifierRigExpectation | None = None
+        try:
+            self.limits, self.expected = self._derive_startup_limits()
+        except (SafetyConfigError, ParameterError, ValueError, FileNotFoundError) as exc:
+            self.startup_error = str(exc)
+            self.get_logger().error(f"configuration refused (the node stays at 0 V; fix and restart): {exc}")
+        #: the hardware ceiling decided at start-up: nothing at run time raises it
+        self.ceiling_V = self.limits.max_voltage_V if self.limits is not None else 0.0
+        self.declare_parameter("enforced_max_voltage_V", float(self.ceiling_V), _descriptor(
+            "the voltage ceiling enforced, V (decided at start-up; 0: configuration refused)"), ignore_override=True)
+        self.declare_parameter("membrane_limit_V", float(self.limits.membrane_limit_V if self.limits else 0.0),
+                               _descriptor("margin x breakdown field x thickness of params_file, V"),
+                               ignore_override=True)
+        self.update_period_s = 1.0 / float(self.config["update_rate_hz"]) if self.limits else 0.001
+
         self.controller: SafeVoltageController | None = None
+        self.control_clock: ControlClock | None = None
         self.backend = None
         self.timer = None
+        self.backstop_timer = None
         self.voltage_pub = None
         self.cmd_sub = None
-        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_timer(1.0, self.publish_diagnostics)
-        self.last_rejection_log = 0.0
+        self.fault_reason: str | None = None
         self.backend_fault: str | None = None
+        self.last_rejection_log = 0.0
+        self.last_update_wall_s = time.monotonic()
+        self.stamp_s = 0.0  # time carried by the next datagram (monotonic, or simulated time)
+        self.stamp_ros_s: float | int = 0.0  # s (simulated time) or ns (an int: real time)
+        self.mono_to_ros_ns = 0
+        self.last_sim_s: float | None = None
+        self.previous_output_V = 0.0
+        self.monitor_V: float | None = None
+        self.output_enabled = False
+        self.sim_stalls = 0
+        self._shutting_down = False
+        self.steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(1.0, self._guarded(self.publish_diagnostics), clock=self.steady)
+
+    # ------------------------------------------------------------------ start-up
+    def _refuse_parameter_changes(self, parameters) -> SetParametersResult:
+        for parameter in parameters:
+            if not self.has_parameter(parameter.name):
+                continue  # a declaration (start-up), not a change
+            current = self.get_parameter(parameter.name).value
+            return SetParametersResult(successful=False, reason=(
+                f"amplifier_node: '{parameter.name}' is fixed at start-up for safety (it stays {current!r}); "
+                f"restart the node with --ros-args -p {parameter.name}:=<value> to change it"))
+        return SetParametersResult(successful=True)
+
+    def _derive_startup_limits(self) -> tuple[SafetyLimits, AmplifierRigExpectation]:
+        c = self.config
+        backend = str(c["backend"]).strip()
+        if backend not in BACKENDS:
+            raise ValueError(f"parameter 'backend': one of {BACKENDS}, got {backend!r}")
+        if self.sim_time and backend != "mock":
+            raise ValueError(
+                f"parameter 'use_sim_time': simulated time is accepted only with the mock backend (a simulated "
+                f"clock must never pace real high voltage); backend is {backend!r}: set use_sim_time:=false")
+
+        def check(name, low, high, hint=""):
+            value = float(c[name])
+            if not (math.isfinite(value) and low <= value <= high):
+                raise ValueError(f"parameter '{name}': {value:g} is outside [{low:g}, {high:g}]" +
+                                 (f"; {hint}" if hint else ""))
+            return value
+
+        check("update_rate_hz", 1.0, 20000.0, "Hz")
+        check("slew_rate_V_per_s", 1.0, 1e7, "V/s (2.2 kV in 22 ms = 1e5 V/s; a value in V/ms?)")
+        check("mock_port", 1, 65535)
+        check("uldaq_channel", 0, 255)
+        check("enable_bit", 0, 63)
+        check("monitor_channel", -1, 255, "-1 for no monitor")
+        check("monitor_tolerance_V", 1.0, 1e4, "V")
+        check("monitor_tolerance_fraction", 0.0, 0.5)
+        check("monitor_gain_V_per_V", 0.0, 1e6, "0 for the amplifier gain")
+        check("amplifier_max_output_V", 1.0, 30000.0, "V (TREK 10/10B-HS: 10000; a value in kV?)")
+        check("amplifier_input_full_scale_V", 0.1, 20.0, "V (TREK: 10)")
+        check("amplifier_gain_V_per_V", 1.0, 1e5, "V/V (TREK 10/10B-HS: 1000)")
+        configured_max = check("max_voltage_V", 0.0, 30000.0, "V, 0 for the membrane limit (a value in kV?)")
+        membrane = load_parameters(str(c["params_file"]), require=("breakdown_field_V_per_m",))
+        limits = SafetyLimits.from_membrane(
+            membrane.thickness_m, membrane.breakdown_field_V_per_m, float(c["margin"]),
+            slew_rate_V_per_s=float(c["slew_rate_V_per_s"]),
+            watchdog_timeout_s=float(c["watchdog_timeout_s"]),
+            ramp_down_rate_V_per_s=float(c["ramp_down_rate_V_per_s"]),
+            max_voltage_V=configured_max if configured_max > 0 else None,
+        )
+        expected = AmplifierRigExpectation(
+            backend=backend, ceiling_V=limits.max_voltage_V,
+            amplifier_gain_V_per_V=float(c["amplifier_gain_V_per_V"]),
+            amplifier_max_output_V=float(c["amplifier_max_output_V"]),
+            amplifier_input_full_scale_V=float(c["amplifier_input_full_scale_V"]),
+            unique_id=str(c["uldaq_unique_id"]) or None, ao_channel=int(c["uldaq_channel"]),
+            ao_range=str(c["uldaq_range"]),
+            monitor_channel=int(c["monitor_channel"]) if int(c["monitor_channel"]) >= 0 else None,
+            monitor_gain_V_per_V=float(c["monitor_gain_V_per_V"]) or None,
+            monitor_range=str(c["monitor_range"]), monitor_input_mode=str(c["monitor_input_mode"]),
+            enable_port=str(c["enable_port"]).strip() or None, enable_bit=int(c["enable_bit"]),
+        )
+        description = describe_amplifier_rig(expected, None)  # the board is checked at configure
+        if not description.ok:
+            raise ValueError("; ".join(description.mismatches))
+        return limits, expected
 
     # ------------------------------------------------------------------ helpers
     def now_s(self) -> float:
+        """ROS time, s (stamps only: the safety logic never reads it outside simulated time)."""
         return self.get_clock().now().nanoseconds * 1e-9
 
     def p(self, name):
-        return self.get_parameter(name).value
+        return self.config[name] if name in self.config else self.get_parameter(name).value
 
-    def make_limits(self) -> SafetyLimits:
-        membrane = load_parameters(self.p("params_file"))
-        configured = float(self.p("max_voltage_V"))
-        return SafetyLimits.from_membrane(
-            membrane.thickness_m, membrane.breakdown_field_V_per_m, float(self.p("margin")),
-            slew_rate_V_per_s=float(self.p("slew_rate_V_per_s")),
-            watchdog_timeout_s=float(self.p("watchdog_timeout_s")),
-            ramp_down_rate_V_per_s=float(self.p("ramp_down_rate_V_per_s")),
-            max_voltage_V=configured if configured > 0 else None,
+    def _guarded(self, callback):
+        """Any exception in a callback is a fault: ramp to 0 V, disable, close (never a silent death)."""
+        @functools.wraps(callback)
+        def run(*args):
+            try:
+                return callback(*args)
+            except Exception as exc:  # noqa: BLE001 - every exception must end at 0 V
+                self.enter_fault(f"{callback.__name__} raised {type(exc).__name__}: {exc}")
+        return run
+
+    def _control_time(self, source: str) -> float:
+        """Advance and return the controller's time, s. ``source``: "update" (the update timer) or
+        "wall" (shutdown ramps, the stall backstop). Sets the stamp of the next datagram."""
+        mono = time.monotonic()
+        if self.sim_time and source == "update":
+            sim = self.now_s()
+            self.last_sim_s = self.stamp_ros_s = self.stamp_s = sim
+            return self.control_clock.advance(sim, "sim")
+        if not self.sim_time:
+            self.stamp_s = mono
+            # the stamp on `voltage`: ROS time of this very instant (an offset fixed at configure, so
+            # the stamped stream keeps the controller's exact time differences, like the mock rig's)
+            self.stamp_ros_s = int(round(mono * 1e9)) + self.mono_to_ros_ns  # integer ns: exact differences
+        elif self.last_sim_s is not None:
+            self.stamp_s = self.last_sim_s
+        return self.control_clock.advance(mono, "wall")
+
+    def _datagram_stamp(self) -> float:
+        return self.stamp_s
+
+    def make_backend(self):
+        c = self.config
+        kind = self.expected.backend
+        if kind == "mock":
+            return MockAmplifierBackend(int(c["mock_port"]), max_voltage_V=self.ceiling_V, clock=self._datagram_stamp)
+        if kind == "inprocess":
+            return InProcessAmplifierBackend(max_voltage_V=self.ceiling_V)
+        e = self.expected
+        return UldaqAmplifierBackend(
+            unique_id=e.unique_id, channel=e.ao_channel, amplifier_gain_V_per_V=e.amplifier_gain_V_per_V,
+            ao_range=e.ao_range, max_voltage_V=self.ceiling_V, amplifier_max_output_V=e.amplifier_max_output_V,
+            amplifier_input_full_scale_V=e.amplifier_input_full_scale_V, monitor_channel=e.monitor_channel,
+            monitor_gain_V_per_V=e.monitor_gain_V_per_V, monitor_range=e.monitor_range,
+            monitor_input_mode=e.monitor_input_mode, enable_port=e.enable_port, enable_bit=e.enable_bit,
+            enable_active_high=bool(c["enable_active_high"]), enable_heartbeat=bool(c["enable_heartbeat"]),
         )
 
-    def make_backend(self, max_voltage_V: float):
-        kind = self.p("backend")
-        if kind == "mock":
-            if self.get_parameter("use_sim_time").value:
-                # simulated time: stamp the datagrams with the ROS (simulated) clock so that the mock
-                # applies each voltage at the simulated instant it was applied (lockstep)
-                return MockAmplifierBackend(int(self.p("mock_port")), max_voltage_V=max_voltage_V, clock=self.now_s)
-            return MockAmplifierBackend(int(self.p("mock_port")), max_voltage_V=max_voltage_V)
-        if kind == "inprocess":
-            return InProcessAmplifierBackend(max_voltage_V=max_voltage_V)
-        if kind == "uldaq":
-            return UldaqAmplifierBackend(
-                unique_id=self.p("uldaq_unique_id") or None, channel=int(self.p("uldaq_channel")),
-                amplifier_gain_V_per_V=float(self.p("amplifier_gain_V_per_V")),
-                ao_range=self.p("uldaq_range"), max_voltage_V=max_voltage_V,
-            )
-        raise ValueError(f"parameter 'backend': mock, uldaq or inprocess, got {kind!r}")
-
-    def write(self, voltage_V: float) -> None:
+    def write(self, voltage_V: float) -> bool:
+        """Write to the backend; a failure is a fault (returns False)."""
         try:
             self.backend.write_voltage(voltage_V)
-        except AmplifierBackendError as exc:
+            return True
+        except Exception as exc:  # noqa: BLE001 - AmplifierBackendError or anything the driver raises
             self.backend_fault = str(exc)
             self.get_logger().error(f"backend failed: {exc}", throttle_duration_sec=2.0)
+            return False
+
+    def _set_enabled(self, enabled: bool) -> None:
+        if self.backend is None or not self.backend.is_open or enabled == self.output_enabled:
+            return
+        self.backend.set_output_enabled(enabled)
+        self.output_enabled = enabled
 
     # --------------------------------------------------------------- lifecycle
     def on_configure(self, state) -> TransitionCallbackReturn:
-        try:
-            limits = self.make_limits()
-            self.backend = self.make_backend(limits.max_voltage_V)
-            self.backend.open()  # writes 0 V
-        except (SafetyConfigError, ParameterError, AmplifierBackendError, ValueError, FileNotFoundError) as exc:
-            self.get_logger().error(f"configure failed: {exc}")
-            self.backend = None
+        if self.startup_error is not None:
+            self.get_logger().error(f"configure refused: {self.startup_error} (fix the parameters and restart)")
             return TransitionCallbackReturn.FAILURE
-        self.controller = SafeVoltageController(limits)
+        self.mono_to_ros_ns = self.get_clock().now().nanoseconds - int(round(time.monotonic() * 1e9))
+        self.stamp_s = self.now_s() if self.sim_time else time.monotonic()  # of the 0 V written on open
+        try:
+            backend = self.make_backend()
+            backend.open()  # writes 0 V (uldaq: after checking the board against the configuration)
+        except (AmplifierBackendError, ValueError, OSError) as exc:
+            self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
+        description = getattr(backend, "rig_description", None) or describe_amplifier_rig(self.expected, None)
+        for line in description.lines():
+            self.get_logger().info(line)
+        self.backend = backend
+        self.fault_reason = self.backend_fault = None
+        self.output_enabled = False
+        self.previous_output_V = 0.0
+        self.monitor_V = None
+        if self.expected.monitor_channel is not None:
+            problem = self._monitor_problem(0.0, 0.0)
+            if problem is not None:
+                self.get_logger().error(f"configure failed: with 0 V commanded {problem}")
+                self._close_backend()
+                return TransitionCallbackReturn.FAILURE
+        self.controller = SafeVoltageController(self.limits)
+        self.control_clock = ControlClock(max_step_s=self.update_period_s if self.sim_time else None)
+        self._control_time("update")
+        self._control_time("wall")
         self.voltage_pub = self.create_publisher(BatteryState, TOPIC_VOLTAGE, SENSOR_QOS)
-        self.cmd_sub = self.create_subscription(Float64, TOPIC_VOLTAGE_CMD, self.on_command, COMMAND_QOS)
-        self.timer = self.create_timer(1.0 / float(self.p("update_rate_hz")), self.on_update)
+        self.cmd_sub = self.create_subscription(Float64, TOPIC_VOLTAGE_CMD, self._guarded(self.on_command),
+                                                COMMAND_QOS)
+        self.last_update_wall_s = time.monotonic()
+        if self.sim_time:  # lockstep with the simulated rig; a wall-clock backstop for a stalled clock
+            self.timer = self.create_timer(self.update_period_s, self._guarded(self.on_update))
+            self.backstop_timer = self.create_timer(0.1, self._guarded(self.on_backstop), clock=self.steady)
+        else:
+            self.timer = self.create_timer(self.update_period_s, self._guarded(self.on_update), clock=self.steady)
+        lim = self.limits
         self.get_logger().info(
-            f"configured: backend {self.p('backend')}, max {limits.max_voltage_V:.0f} V "
-            f"(membrane limit {limits.membrane_limit_V:.0f} V), slew {limits.slew_rate_V_per_s:g} V/s, "
-            f"watchdog {limits.watchdog_timeout_s:g} s"
-        )
+            f"configured: backend {self.expected.backend}, ceiling {lim.max_voltage_V:.0f} V (membrane limit "
+            f"{lim.membrane_limit_V:.0f} V), slew {lim.slew_rate_V_per_s:g} V/s, watchdog "
+            f"{lim.watchdog_timeout_s:g} s, ramp {lim.ramp_down_rate_V_per_s:g} V/s, "
+            f"{'simulated' if self.sim_time else 'monotonic'} time")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
-        self.controller.activate(self.now_s())
+        if self.fault_reason is not None or self.controller is None or self.backend is None \
+                or not self.backend.is_open:
+            self.get_logger().error(f"activate refused: faulted ({self.fault_reason}); cleanup and configure")
+            return TransitionCallbackReturn.FAILURE
+        self.controller.activate(self.control_clock.now_s)
+        try:
+            self._set_enabled(True)
+        except AmplifierBackendError as exc:
+            self.enter_fault(f"enable output failed: {exc}")
+            return TransitionCallbackReturn.FAILURE
         self.get_logger().info("active: following voltage_cmd")
         return super().on_activate(state)
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
-        self.controller.deactivate(self.now_s())  # the update timer ramps the output to 0 V
+        if self.controller is not None:
+            self.controller.deactivate(self.control_clock.now_s)  # the update timer ramps to 0 V
         self.get_logger().info("inactive: ramping to 0 V")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         self.shutdown_safely()
-        for attr in ("timer",):
-            if getattr(self, attr) is not None:
-                self.destroy_timer(self.timer)
-                self.timer = None
+        for timer in (self.timer, self.backstop_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self.timer = self.backstop_timer = None
         if self.cmd_sub is not None:
             self.destroy_subscription(self.cmd_sub)
             self.cmd_sub = None
@@ -166,6 +386,8 @@ class AmplifierNode(LifecycleNode):
             self.destroy_publisher(self.voltage_pub)
             self.voltage_pub = None
         self.controller = None
+        self.backend = None
+        self.fault_reason = None  # the next configure checks everything again
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state) -> TransitionCallbackReturn:
@@ -176,24 +398,79 @@ class AmplifierNode(LifecycleNode):
         self.shutdown_safely()
         return TransitionCallbackReturn.SUCCESS
 
-    def shutdown_safely(self) -> None:
-        """Blocking ramp to 0 V on the wall clock, then close the backend (SIGINT/SIGTERM/cleanup)."""
-        if self.controller is None or self.backend is None or not self.backend.is_open:
+    # ----------------------------------------------------------- ramps and faults
+    def _ramp_to_zero(self) -> float:
+        """Blocking ramp to 0 V at the ramp-down rate on the wall clock (controller time)."""
+        period = min(0.002, self.update_period_s)
+        return drive_to_zero(self.controller, self.write, lambda: self._control_time("wall"), time.sleep,
+                             period_s=period)
+
+    def _close_backend(self) -> None:
+        backend = self.backend
+        if backend is None or not backend.is_open:
             return
-        last = drive_to_zero(self.controller, self.write, time.monotonic, time.sleep, period_s=0.002)
-        if last != 0.0:
-            self.get_logger().error(f"ramp to 0 V did not finish (last output {last:.1f} V)")
         try:
-            self.backend.close()  # writes 0 V again
-        except AmplifierBackendError as exc:
+            backend.set_output_enabled(False)
+        except Exception as exc:  # noqa: BLE001
+            self.get_logger().error(f"disabling the amplifier failed: {exc}")
+        self.output_enabled = False
+        try:
+            backend.close()  # writes 0 V again
+        except Exception as exc:  # noqa: BLE001
             self.get_logger().error(f"closing the backend failed: {exc}")
-        self.get_logger().info("output at 0 V, backend closed")
+
+    def shutdown_safely(self) -> None:
+        """Ramp to 0 V on the wall clock, disable the amplifier, close the backend (idempotent).
+
+        Called on cleanup, shutdown, errors, every caught signal and executor shutdown.
+        """
+        if self._shutting_down or self.controller is None or self.backend is None or not self.backend.is_open:
+            return
+        self._shutting_down = True
+        try:
+            last = self._ramp_to_zero()
+            if last != 0.0:
+                self.get_logger().error(f"ramp to 0 V did not finish (last output {last:.1f} V)")
+            self._close_backend()
+            self.get_logger().info("output at 0 V, amplifier disabled, backend closed")
+        finally:
+            self._shutting_down = False
+
+    def enter_fault(self, reason: str) -> None:
+        """Latched fault: the enable line drops at once, the output ramps to 0 V, the backend closes.
+        Leaves only through cleanup + configure (which checks everything again)."""
+        if self.fault_reason is None:
+            self.fault_reason = reason
+            self.get_logger().error(f"FAULT: {reason}; ramping to 0 V and disabling the amplifier")
+        if self.backend is not None and self.backend.is_open:
+            try:
+                self.backend.set_output_enabled(False)
+                self.output_enabled = False
+            except Exception as exc:  # noqa: BLE001
+                self.get_logger().error(f"disabling the amplifier failed: {exc}")
+        self.shutdown_safely()
+
+    def _monitor_problem(self, commanded_V: float, previous_V: float) -> str | None:
+        """Compare the monitor with the command; None when they agree."""
+        try:
+            monitor_V = self.backend.read_monitor_V()
+        except Exception as exc:  # noqa: BLE001
+            return f"the amplifier monitor was lost ({exc})"
+        if monitor_V is None or not math.isfinite(monitor_V):
+            return f"the amplifier monitor was lost (read {monitor_V!r})"
+        self.monitor_V = monitor_V
+        low, high = min(commanded_V, previous_V), max(commanded_V, previous_V)  # the output moves between them
+        tolerance = float(self.config["monitor_tolerance_V"]) + float(self.config["monitor_tolerance_fraction"]) * high
+        if low - tolerance <= monitor_V <= high + tolerance:
+            return None
+        return (f"the amplifier monitor reads {monitor_V:.1f} V while {commanded_V:.1f} V is commanded (tolerance "
+                f"{tolerance:.1f} V): amplifier gain slip, wiring or amplifier fault")
 
     # ---------------------------------------------------------------- callbacks
     def on_command(self, msg: Float64) -> None:
         if self.controller is None:
             return
-        result = self.controller.command(msg.data, self.now_s())
+        result = self.controller.command(msg.data, self.control_clock.now_s)
         if not result:
             now = time.monotonic()
             if now - self.last_rejection_log > 1.0:
@@ -202,46 +479,89 @@ class AmplifierNode(LifecycleNode):
                     f"rejected voltage_cmd {msg.data!r}: {result.reason}; counts {self.controller.rejected_counts}"
                 )
 
-    def on_update(self) -> None:
-        if self.controller is None or self.backend is None:
+    def on_update(self, source: str = "update") -> None:
+        if self.controller is None or self.backend is None or not self.backend.is_open or self._shutting_down:
             return
-        t = self.now_s()
+        t = self._control_time(source)
         u = self.controller.update(t)
-        self.write(u)
+        if not self.write(u):
+            self.enter_fault(f"backend write failed: {self.backend_fault}")
+            return
+        if self.expected.monitor_channel is not None:
+            problem = self._monitor_problem(u, self.previous_output_V)
+            if problem is not None:
+                self.enter_fault(problem)
+                return
+        self.previous_output_V = u
+        self._set_enabled(self.controller.is_activated or u > 0.0)
+        self.last_update_wall_s = time.monotonic()
         if self.voltage_pub is not None:
-            self.voltage_pub.publish(make_voltage_state(u, t, self.controller.is_activated))
+            self.voltage_pub.publish(make_voltage_state(u, self.stamp_ros_s, self.controller.is_activated))
+
+    def on_backstop(self) -> None:
+        """Simulated time only: when the simulated clock stalls, ramp to 0 V on the wall clock."""
+        if self.controller is None or self.backend is None or not self.backend.is_open:
+            return
+        stalled_s = time.monotonic() - self.last_update_wall_s
+        if stalled_s < SIM_CLOCK_STALL_S or (self.controller.output_V == 0.0 and not self.controller.is_activated):
+            return
+        self.sim_stalls += 1
+        self.get_logger().error(
+            f"simulated clock stalled for {stalled_s:.1f} s (wall): ramping to 0 V on the wall clock; "
+            "deactivate and activate to resume")
+        self._ramp_to_zero()
+        self.last_update_wall_s = time.monotonic()
 
     def publish_diagnostics(self) -> None:
         if self.controller is None:
-            level, message, values = DiagnosticStatus.OK, "unconfigured (0 V)", []
+            level = DiagnosticStatus.ERROR if (self.startup_error or self.fault_reason) else DiagnosticStatus.OK
+            message = self.startup_error or self.fault_reason or "unconfigured (0 V)"
+            values = [("enforced_max_voltage_V", f"{self.ceiling_V:.1f}")]
         else:
-            values = self.controller.diagnostics(self.now_s()).key_values()
+            values = self.controller.diagnostics(self.control_clock.now_s).key_values()
+            values += [("enforced_max_voltage_V", f"{self.ceiling_V:.1f}"),
+                       ("monitor_V", "none" if self.monitor_V is None else f"{self.monitor_V:.1f}"),
+                       ("output_enabled", str(self.output_enabled)),
+                       ("clock_clamped_steps", str(self.control_clock.clamped_steps)),
+                       ("sim_clock_stalls", str(self.sim_stalls))]
             rejected = sum(self.controller.rejected_counts.values())
-            level = DiagnosticStatus.ERROR if self.backend_fault else (
+            fault = self.fault_reason or self.backend_fault
+            level = DiagnosticStatus.ERROR if fault else (
                 DiagnosticStatus.WARN if rejected or self.controller.watchdog_trip_count else DiagnosticStatus.OK)
-            message = self.backend_fault or f"{self.controller.state.value}, {rejected} rejected commands"
-        publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: high voltage", str(self.p("backend")),
+            message = fault or f"{self.controller.state.value}, {rejected} rejected commands"
+        publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: high voltage", str(self.config["backend"]),
                            level, message, values)
 
 
 def main(args=None) -> None:
-    """``ros2 run dea_ros amplifier_node``: configures and, with ``-p autostart:=true``, activates."""
+    """``ros2 run dea_ros amplifier_node``: configures and, with ``-p autostart:=true``, activates.
+
+    Exits with code 2 (and a message naming the parameter) when the parameters are refused.
+    """
     import sys
 
-    import rclpy
+    from rclpy.exceptions import ParameterException
 
     from .runner import run_nodes
 
     def factory():
-        node = AmplifierNode()
-        autostart = node.declare_parameter("autostart", False).value
+        try:
+            node = AmplifierNode()
+        except (ParameterException, TypeError, ValueError) as exc:
+            print(f"amplifier_node: parameter error: {exc}", file=sys.stderr)
+            raise SystemExit(2) from None
+        autostart = node.declare_parameter(
+            "autostart", False, _descriptor("configure and activate at start (no lifecycle manager)")).value
         if autostart:
-            node.trigger_configure()
+            if node.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                print(f"amplifier_node: configure failed ({node.startup_error or 'see the log'}); nothing was "
+                      "applied", file=sys.stderr)
+                node.destroy_node()
+                raise SystemExit(2)
             node.trigger_activate()
         return node
 
     run_nodes([factory], args=args if args is not None else sys.argv)
-    del rclpy
 
 
 if __name__ == "__main__":

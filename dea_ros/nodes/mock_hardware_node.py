@@ -20,6 +20,10 @@ publishes ``/clock`` (rosgraph_msgs/Clock) and the other nodes run with
 simulation never runs ahead of the amplifier: a tick is published only after the amplifier's
 output for the previous one arrived (stamped with the simulated clock), or after
 ``lockstep_timeout_s`` of wall time. ``real_time_factor`` is then an upper bound.
+
+The simulated amplifier has its own dead-man interlock: when no datagram arrived for
+``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
+power), its output drops to 0 V by itself, as a real rig's interlock would.
 """
 from __future__ import annotations
 
@@ -161,6 +165,9 @@ class MockHardwareNode(Node):
                                      "simulated time: never advance before the amplifier acted on the last tick")
         self.lockstep_timeout_s = declare_float(self, "lockstep_timeout_s", 0.5,
                                                 "wall-clock wait for the amplifier per tick, s", 0.001, 10.0)
+        deadman_s = declare_float(self, "amplifier_deadman_s", 0.5,
+                                  "the simulated amplifier drops to 0 V when no datagram came for this long "
+                                  "(wall clock), s", 0.01, 10.0)
         acks = self.declare_parameter(
             "lockstep_topics", ["identifier_node/tick_done"],
             ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
@@ -176,7 +183,7 @@ class MockHardwareNode(Node):
             params = load_parameters(source)
         except (ParameterError, FileNotFoundError) as exc:
             raise SystemExit(f"mock_hardware_node: parameter 'params_file': {exc}") from None
-        self.receiver = MockAmplifierReceiver(port=self.amplifier_port)
+        self.receiver = MockAmplifierReceiver(port=self.amplifier_port, deadman_timeout_s=deadman_s)
         self.tick_index = 0                      # /clock ticks published (simulated time)
         self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
         self.clock_time_s: float | None = None   # last /clock published
@@ -242,6 +249,8 @@ class MockHardwareNode(Node):
             elif received.sent_s <= time.monotonic():
                 self.sim.advance_to(max(received.sent_s, self.sim.t_s))
             self.sim.set_voltage(received.voltage_V)
+        if self.receiver.applied_voltage_V() == 0.0 and self.sim.voltage_V != 0.0:
+            self.sim.set_voltage(0.0)  # the dead-man expired: the amplifier's output is off
 
     def emit_samples(self, t_end: float, to_ros_offset: float) -> None:
         """Publish laser samples acquired up to t_end (simulation time axis)."""
@@ -314,6 +323,7 @@ class MockHardwareNode(Node):
              ("displacement_m", f"{self.sim.stepper.displacement_m:.9f}"),
              ("physics_steps", self.sim.steps), ("samples_published", self.published),
              ("amplifier_datagrams", self.receiver.received_count), ("sim_lag_s", f"{lag:.3f}"),
+             ("amplifier_deadman_trips", self.receiver.deadman_trip_count),
              ("lockstep_timeouts", self.lockstep_timeouts)],
         )
 

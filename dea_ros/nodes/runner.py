@@ -1,7 +1,8 @@
 """Running nodes: one node per process (``ros2 run``), or several on one executor (the rig).
 
-Both paths install SIGINT/SIGTERM handling that lets a node's ``shutdown_safely()``
-(the amplifier ramps its voltage to 0 V) run before rclpy goes down.
+Both paths install SIGINT/SIGTERM/SIGHUP/SIGQUIT handling (Ctrl-C, kill, a closed SSH
+session, Ctrl-\\) that lets a node's ``shutdown_safely()`` (the amplifier ramps its voltage
+to 0 V) run before rclpy goes down.
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def run_nodes(factories, args=None, threads: int = 1) -> None:
     def on_signal(signum, _frame):
         stop["requested"] = True
 
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    catchable = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT") if hasattr(signal, name)]
+    old = {s: signal.signal(s, on_signal) for s in catchable}
     executor = MultiThreadedExecutor(threads) if threads > 1 else SingleThreadedExecutor()
     try:
         for factory in factories:

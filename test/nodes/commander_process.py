@@ -20,6 +20,11 @@ def main():
     t_end = time.monotonic() + duration
     specials = [math.nan, math.inf, -math.inf, -1.0, 1e5, 2430.0, 2431.0, 0.0]
     print("ready", flush=True)
+    t_match = time.monotonic() + 10.0
+    while pub.get_subscription_count() == 0 and time.monotonic() < t_match:
+        time.sleep(0.01)  # discovery: a command published before the match is lost
+    for value in specials:  # every special at least once (the random stream may miss some)
+        pub.publish(Float64(data=value))
     while time.monotonic() < t_end:
         kind = rng.random()
         if kind < 0.1:
