@@ -503,8 +503,8 @@ class AmplifierNode(LifecycleNode):
         if self.controller is None or self.backend is None or not self.backend.is_open:
             return
         stalled_s = time.monotonic() - self.last_update_wall_s
-        if stalled_s < SIM_CLOCK_STALL_S or (self.controller.output_V == 0.0 and not self.controller.is_activated):
-            return
+        if stalled_s < SIM_CLOCK_STALL_S or self.controller.output_V == 0.0:
+            return  # (at 0 V nothing can rise without an update, i.e. without the simulated clock)
         self.sim_stalls += 1
         self.get_logger().error(
             f"simulated clock stalled for {stalled_s:.1f} s (wall): ramping to 0 V on the wall clock; "

@@ -148,29 +148,40 @@ def test_parameter_and_lifecycle_attacks_cannot_raise_the_voltage(ros_context, c
     assert capture.last_V() == 0.0
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT],
-                         ids=lambda s: s.name)
-def test_every_catchable_signal_ramps_to_zero_before_exit(ros_context, capture, sig):
-    """Issue 9: SIGHUP (a closed SSH session) and SIGQUIT left 3 kV; SIGINT/SIGTERM ramped down."""
-    ns = f"/atk_{sig.name.lower()}"
-    proc = H.start_amplifier(capture.port, ns, watchdog_timeout_s=2.0)
-    attacker = Attacker(ros_context, ns)
+def test_every_catchable_signal_ramps_to_zero_before_exit(ros_context):
+    """Issue 9: SIGHUP (a closed SSH session) and SIGQUIT left 3 kV; SIGINT/SIGTERM ramped down.
+    Four node processes (one per signal) at 2 kV, each signalled: each ramps to 0 V, then exits 0."""
+    signals = [signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT]
+    captures = {sig: H.Capture() for sig in signals}
+    procs = {sig: H.start_amplifier(captures[sig].port, f"/atk_{sig.name.lower()}", watchdog_timeout_s=2.0)
+             for sig in signals}
+    attackers = {sig: Attacker(ros_context, f"/atk_{sig.name.lower()}") for sig in signals}
     try:
-        assert attacker.command_for(2000.0, until=lambda: capture.last_V() == 2000.0, timeout_s=H.READY_TIMEOUT_S), \
-            _stderr(proc)
-        proc.send_signal(sig)
-        proc.wait(timeout=20)
+        t_end = time.monotonic() + H.READY_TIMEOUT_S
+        while time.monotonic() < t_end and not all(c.last_V() == 2000.0 for c in captures.values()):
+            for attacker in attackers.values():
+                attacker.command_for(2000.0, duration_s=0.01)
+        for sig in signals:
+            assert captures[sig].last_V() == 2000.0, (sig.name, _stderr(procs[sig]))
+        for sig in signals:
+            procs[sig].send_signal(sig)
+        for sig in signals:
+            procs[sig].wait(timeout=20)
     finally:
-        attacker.close()
-        H.stop(proc, signal.SIGKILL)
-    assert proc.returncode == 0, _stderr(proc)
+        for attacker in attackers.values():
+            attacker.close()
+        for proc in procs.values():
+            H.stop(proc, signal.SIGKILL)
     time.sleep(0.1)
-    data = capture.snapshot()
-    values = [d.voltage_V for d in data]
-    assert values[-1] == 0.0
-    tail = values[len(values) - 1 - values[::-1].index(2000.0):]
-    assert all(b <= a for a, b in zip(tail, tail[1:])) and len(tail) > 10  # a monotone ramp, not a step
-    H.check_safe(data, CEILING, SLEW)
+    for sig in signals:
+        assert procs[sig].returncode == 0, (sig.name, _stderr(procs[sig]))
+        data = captures[sig].snapshot()
+        captures[sig].close()
+        values = [d.voltage_V for d in data]
+        assert values[-1] == 0.0, sig.name
+        tail = values[len(values) - 1 - values[::-1].index(2000.0):]
+        assert all(b <= a for a, b in zip(tail, tail[1:])) and len(tail) > 10, sig.name  # a ramp, not a step
+        H.check_safe(data, CEILING, SLEW)
 
 
 def test_sigkill_the_mock_amplifier_drops_to_zero_by_itself(ros_context):
@@ -284,7 +295,7 @@ def _fuzz(ros_context, capture, seed, sim_time):
             attacker.cmd.publish(Float64(data=2500.0))
             attacker.ex.spin_once(timeout_sec=0.004)
         assert capture.last_V() == 2500.0
-        t_end = time.monotonic() + 4.0
+        t_end = time.monotonic() + 3.0
         while time.monotonic() < t_end:
             r = rng.random()
             if r < 0.45:
@@ -306,10 +317,11 @@ def _fuzz(ros_context, capture, seed, sim_time):
                 futures.append(attacker.change_state.call_async(H.transition_request(rng.choice(transitions))))
             attacker.ex.spin_once(timeout_sec=rng.choice([0.0, 0.002, 0.01]))
         # silence: no commands; in simulated time the clock master dies too
-        t_end = time.monotonic() + 3.0
-        while time.monotonic() < t_end:
+        n_futures = len(futures)
+        t_end = time.monotonic() + 15.0
+        while time.monotonic() < t_end and not (capture.last_V() == 0.0 and all(f.done() for f in futures)):
             attacker.ex.spin_once(timeout_sec=0.01)
-        assert capture.wait_for(lambda c: c.last_V() == 0.0, timeout_s=15.0)
+        assert capture.last_V() == 0.0 and n_futures > 10
         answered = [f.result() for f in futures if f.done() and f.result() is not None]
         assert not any(getattr(res, "successful", False)
                        for a in answered if hasattr(a, "results") for res in a.results), "a parameter set succeeded"
