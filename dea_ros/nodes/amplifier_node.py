@@ -47,11 +47,13 @@ from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
 from ..hardware.amplifier_backends import (
+    AMPLIFIER_PARAMETERS,
     AmplifierBackendError,
     AmplifierRigExpectation,
     InProcessAmplifierBackend,
     MockAmplifierBackend,
     UldaqAmplifierBackend,
+    amplifier_config_from_parameters,
     describe_amplifier_rig,
 )
 from ..hardware.amplifier_safety import (
@@ -61,7 +63,7 @@ from ..hardware.amplifier_safety import (
     SafetyLimits,
     drive_to_zero,
 )
-from ..model import ParameterError, load_parameters
+from ..model import ParameterError
 from .common import (
     COMMAND_QOS,
     SENSOR_QOS,
@@ -76,42 +78,9 @@ __all__ = ["AmplifierNode", "main", "PARAMETERS", "SIM_CLOCK_STALL_S"]
 #: Simulated time: when the simulated clock has not advanced an update for this long on the
 #: wall clock, the output is ramped to 0 V on the wall clock (latched until deactivate/activate).
 SIM_CLOCK_STALL_S = 2.0
-BACKENDS = ("mock", "uldaq", "inprocess")
 
 #: name -> (default, description). Every one is read-only: fixed at start-up.
-PARAMETERS = {
-    "backend": ("mock", "mock (UDP to mock_hardware_node), uldaq (MCC DAQ) or inprocess"),
-    "params_file": ("A2", "membrane (preset or YAML, with breakdown_field_V_per_m) whose breakdown limit "
-                          "bounds the output; read once at start-up"),
-    "margin": (0.9, "fraction of the breakdown voltage allowed, in (0, 1)"),
-    "max_voltage_V": (0.0, "maximum output, V (0: the membrane limit; above it is refused)"),
-    "slew_rate_V_per_s": (100000.0, "largest rate of change of the output, V/s (1 .. 1e7)"),
-    "ramp_down_rate_V_per_s": (10000.0, "rate of every ramp to 0 V, V/s (<= slew; 0 V within 10 s after "
-                                        "the watchdog)"),
-    "watchdog_timeout_s": (0.5, "ramp to 0 V after this long without a command, s"),
-    "update_rate_hz": (1000.0, "output update and publication rate, Hz (1 .. 20000)"),
-    "mock_port": (47650, "UDP port of mock_hardware_node (backend mock)"),
-    "uldaq_unique_id": ("", "DAQ unique id (empty: the first USB device)"),
-    "uldaq_channel": (0, "analog output channel wired to the amplifier input"),
-    "uldaq_range": ("auto", "analog output range: auto (the smallest the board offers that covers "
-                            "0 .. ceiling / gain) or a uldaq Range name"),
-    "amplifier_gain_V_per_V": (1000.0, "amplifier gain, V/V (TREK 10/10B-HS: 1000)"),
-    "amplifier_max_output_V": (10000.0, "rated output of the amplifier, V (TREK 10/10B-HS: 10000); the ceiling "
-                                        "may not exceed it"),
-    "amplifier_input_full_scale_V": (10.0, "amplifier input for the rated output, V (TREK: 10); gain x full "
-                                           "scale must equal the rated output"),
-    "monitor_channel": (-1, "uldaq analog input wired to the amplifier's voltage monitor (-1: none)"),
-    "monitor_gain_V_per_V": (0.0, "high volts per monitor volt (0: the amplifier gain)"),
-    "monitor_range": ("auto", "monitor input range: auto or a uldaq Range name"),
-    "monitor_input_mode": ("SINGLE_ENDED", "monitor input mode: SINGLE_ENDED or DIFFERENTIAL"),
-    "monitor_tolerance_V": (50.0, "monitor vs command: allowed difference, V (plus the fraction below)"),
-    "monitor_tolerance_fraction": (0.05, "monitor vs command: allowed difference as a fraction of the command"),
-    "enable_port": ("", "uldaq digital port of the amplifier's enable/interlock input ('': none), e.g. AUXPORT"),
-    "enable_bit": (0, "bit of enable_port"),
-    "enable_active_high": (True, "enable_port level that enables the amplifier"),
-    "enable_heartbeat": (False, "toggle the enable line on every update while enabled (for a hardware "
-                                "watchdog relay that drops the enable when the toggling stops)"),
-}
+PARAMETERS = AMPLIFIER_PARAMETERS
 
 
 def _descriptor(description: str) -> ParameterDescriptor:
@@ -180,59 +149,8 @@ class AmplifierNode(LifecycleNode):
         return SetParametersResult(successful=True)
 
     def _derive_startup_limits(self) -> tuple[SafetyLimits, AmplifierRigExpectation]:
-        c = self.config
-        backend = str(c["backend"]).strip()
-        if backend not in BACKENDS:
-            raise ValueError(f"parameter 'backend': one of {BACKENDS}, got {backend!r}")
-        if self.sim_time and backend != "mock":
-            raise ValueError(
-                f"parameter 'use_sim_time': simulated time is accepted only with the mock backend (a simulated "
-                f"clock must never pace real high voltage); backend is {backend!r}: set use_sim_time:=false")
-
-        def check(name, low, high, hint=""):
-            value = float(c[name])
-            if not (math.isfinite(value) and low <= value <= high):
-                raise ValueError(f"parameter '{name}': {value:g} is outside [{low:g}, {high:g}]" +
-                                 (f"; {hint}" if hint else ""))
-            return value
-
-        check("update_rate_hz", 1.0, 20000.0, "Hz")
-        check("slew_rate_V_per_s", 1.0, 1e7, "V/s (2.2 kV in 22 ms = 1e5 V/s; a value in V/ms?)")
-        check("mock_port", 1, 65535)
-        check("uldaq_channel", 0, 255)
-        check("enable_bit", 0, 63)
-        check("monitor_channel", -1, 255, "-1 for no monitor")
-        check("monitor_tolerance_V", 1.0, 1e4, "V")
-        check("monitor_tolerance_fraction", 0.0, 0.5)
-        check("monitor_gain_V_per_V", 0.0, 1e6, "0 for the amplifier gain")
-        check("amplifier_max_output_V", 1.0, 30000.0, "V (TREK 10/10B-HS: 10000; a value in kV?)")
-        check("amplifier_input_full_scale_V", 0.1, 20.0, "V (TREK: 10)")
-        check("amplifier_gain_V_per_V", 1.0, 1e5, "V/V (TREK 10/10B-HS: 1000)")
-        configured_max = check("max_voltage_V", 0.0, 30000.0, "V, 0 for the membrane limit (a value in kV?)")
-        membrane = load_parameters(str(c["params_file"]), require=("breakdown_field_V_per_m",))
-        limits = SafetyLimits.from_membrane(
-            membrane.thickness_m, membrane.breakdown_field_V_per_m, float(c["margin"]),
-            slew_rate_V_per_s=float(c["slew_rate_V_per_s"]),
-            watchdog_timeout_s=float(c["watchdog_timeout_s"]),
-            ramp_down_rate_V_per_s=float(c["ramp_down_rate_V_per_s"]),
-            max_voltage_V=configured_max if configured_max > 0 else None,
-        )
-        expected = AmplifierRigExpectation(
-            backend=backend, ceiling_V=limits.max_voltage_V,
-            amplifier_gain_V_per_V=float(c["amplifier_gain_V_per_V"]),
-            amplifier_max_output_V=float(c["amplifier_max_output_V"]),
-            amplifier_input_full_scale_V=float(c["amplifier_input_full_scale_V"]),
-            unique_id=str(c["uldaq_unique_id"]) or None, ao_channel=int(c["uldaq_channel"]),
-            ao_range=str(c["uldaq_range"]),
-            monitor_channel=int(c["monitor_channel"]) if int(c["monitor_channel"]) >= 0 else None,
-            monitor_gain_V_per_V=float(c["monitor_gain_V_per_V"]) or None,
-            monitor_range=str(c["monitor_range"]), monitor_input_mode=str(c["monitor_input_mode"]),
-            enable_port=str(c["enable_port"]).strip() or None, enable_bit=int(c["enable_bit"]),
-        )
-        description = describe_amplifier_rig(expected, None)  # the board is checked at configure
-        if not description.ok:
-            raise ValueError("; ".join(description.mismatches))
-        return limits, expected
+        config = amplifier_config_from_parameters(self.config, use_sim_time=self.sim_time)
+        return config.limits, config.expected
 
     # ------------------------------------------------------------------ helpers
     def now_s(self) -> float:

@@ -659,3 +659,35 @@ class TestUldaqImport:
         import dea_ros.hardware.amplifier_backends as module
 
         assert "uldaq" not in vars(module)
+
+
+# =========================================================================== amplifier_node configuration (pure)
+class TestAmplifierConfig:
+    def test_shipped_config_derives_the_ceiling(self):
+        from pathlib import Path
+
+        import yaml
+
+        from dea_ros.hardware.amplifier_backends import amplifier_config_from_parameters
+
+        path = Path(__file__).resolve().parents[2] / "config" / "amplifier.yaml"
+        values = yaml.safe_load(path.read_text())["/**/amplifier_node"]["ros__parameters"]
+        config = amplifier_config_from_parameters(values)
+        assert config.ceiling_V == pytest.approx(3150.0) and config.expected.backend == "mock"
+        board = DaqBoardInfo.known("USB-1208FS-Plus", "SN1")
+        uldaq = amplifier_config_from_parameters({**values, "backend": "uldaq"})
+        assert describe_amplifier_rig(uldaq.expected, board).ao_range == "UNI5VOLTS"
+
+    @pytest.mark.parametrize("values, message", [
+        ({"amplifier_gain_V_per_V": 100.0}, "amplifier_gain_V_per_V = 100 V/V"),
+        ({"max_voltage_kV": 3.0}, r"unknown amplifier_node parameter\(s\) \['max_voltage_kV'\]"),
+        ({"backend": "inprocess", "use_sim_time": True}, "use_sim_time"),
+        ({"margin": 1.0}, "margin"),
+        ({"update_rate_hz": "fast"}, "update_rate_hz.*number"),
+        ({"params_file": "/nonexistent/membrane.yaml"}, "no such parameters file"),
+    ])
+    def test_slips_are_named(self, values, message):
+        from dea_ros.hardware.amplifier_backends import amplifier_config_from_parameters
+
+        with pytest.raises(ValueError, match=message):
+            amplifier_config_from_parameters(values)
