@@ -1,7 +1,6 @@
 """Tests of dea_ros.hardware.amplifier_backends: in-process, UDP mock pair, uldaq (faked)."""
 from __future__ import annotations
 
-import enum
 import importlib.abc
 import importlib.machinery
 import math
@@ -10,7 +9,6 @@ import socket
 import struct
 import sys
 import time
-import types
 import warnings
 
 import pytest

@@ -20,7 +20,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState
 
-from dea_ros.hardware.amplifier_backends import MockAmplifierReceiver
 from dea_ros.nodes.amplifier_node import AmplifierNode
 from dea_ros.nodes.common import SENSOR_QOS
 
