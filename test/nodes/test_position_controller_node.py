@@ -263,5 +263,27 @@ def test_bad_params_file_or_limit_fails_configure(ros_context, tmp_path):
     node.destroy_node()
 
 
+def test_config_file_matches_the_declared_parameters():
+    """Every key of config/position_controller.yaml is a declared parameter of the same value (no typos)."""
+    import rclpy
+    import yaml
+    from rclpy.context import Context
+
+    data = yaml.safe_load(CONFIG.read_text())
+    (key,), section = data.keys(), data["/**/position_controller_node"]["ros__parameters"]
+    assert key == "/**/position_controller_node"
+    ctx = Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(CONFIG)])
+    try:
+        node = PositionControllerNode(context=ctx)
+        node.declare_parameter("autostart", False)
+        for name, value in section.items():
+            assert node.has_parameter(name), f"position_controller.yaml: '{name}' is not a parameter"
+            assert node.get_parameter(name).value == value, name
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
 if __name__ == "__main__":   # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
