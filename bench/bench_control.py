@@ -345,7 +345,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--pid-evals", type=int, default=120)
     ap.add_argument("--timing-s", type=float, default=30.0, help="0: skip the node timing")
-    ap.add_argument("--out", default=str(HERE / "results" / "control.md"))
+    ap.add_argument("--timing-only", action="store_true", help="only part 2 (writes control_timing.md)")
+    ap.add_argument("--out", default=None, help="default bench/results/control.md (control_timing.md)")
     args = ap.parse_args()
     params_file = args.params
     if params_file is None:
@@ -353,6 +354,8 @@ def main() -> None:
         if not found:
             sys.exit("no runs/*/params.yaml: run ./scripts/run_demo.sh first or pass --params")
         params_file = found[-1]
+    if args.out is None:
+        args.out = str(HERE / "results" / ("control_timing.md" if args.timing_only else "control.md"))
     ident = load_parameters(params_file)
     truth = load_parameters(args.truth)
     results_dir = Path(args.out).parent
@@ -369,6 +372,17 @@ def main() -> None:
     levels = scen[0][2]
     rig0 = SimulatedRig(truth, U_MAX, slew_rate_V_per_s=args.slew, latency_s=latency, amplifier_phase_s=phase)
 
+    lines = [f"Machine: {machine()}", ""]
+    if not args.timing_only:
+        lines += tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0, phase)
+    if args.timing_s > 0:
+        lines += timing(args, ident, params_file)
+    text = "\n".join(lines) + "\n"
+    print(text)
+    Path(args.out).write_text(text)
+
+
+def tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0, phase):
     t0 = time.perf_counter()
     gains, pid_cost, nfev = tune_pid(truth, args.slew, levels, mid, seed=99, evals=args.pid_evals)
     t_tune = time.perf_counter() - t0
@@ -407,8 +421,7 @@ def main() -> None:
         print(f"seed {seed}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
 
     med = lambda xs: float(np.median(xs))  # noqa: E731
-    lines = [f"Machine: {machine()}", "",
-             f"Controller model: `{params_file}` (identified by the demo); plant: `{args.truth}` (the mock's truth); "
+    lines = [f"Controller model: `{params_file}` (identified by the demo); plant: `{args.truth}` (the mock's truth); "
              f"amplifier slew {args.slew:g} V/s, max {U_MAX:g} V; command at the amplifier {args.latency_ms:g} ms "
              f"after the sample, applied {phase * 1e3:g} ms after it; laser 1 kHz, noise 1 um, quantisation 0.156 um; "
              f"medians over {args.seeds} noise seeds.", "",
@@ -447,7 +460,12 @@ def main() -> None:
             lines.append(f"| {name} | {n} | {r_rms * 1e6:.2f} | {med([r['max_m'] for r in rs]) * 1e6:.2f} | "
                          f"{med([r['u_rms'] for r in rs]):.0f} | {med([r['u_rate'] for r in rs]):.3g} | "
                          f"{r_rms / c_rms:.1f}x |")
-    if args.timing_s > 0:
+    return lines
+
+
+def timing(args, ident, params_file):
+    lines = []
+    if True:
         env = dict(os.environ)
         env.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
         os.environ.update(env)
@@ -456,7 +474,10 @@ def main() -> None:
         d_hold = float(static_equilibrium(ident, 2000.0).displacement_m)
         ctl_t = bench_controller_timing(args.timing_s, env, params_file, d_hold)
         model_t = bench_latency(args.timing_s, env)
+        load = os.getloadavg()
         lines += ["", f"### Loop timing at 1 kHz, {args.timing_s:g} s each, separate processes (same run)", "",
+                  f"Load average at the end: {load[0]:.1f} / {load[1]:.1f} / {load[2]:.1f} (1/5/15 min) on "
+                  f"{os.cpu_count()} cores.", "",
                   "| node | sent | received | latency median [ms] | p99 [ms] | max [ms] | command period median [ms] | "
                   "p1-p99 [ms] | std [ms] |", "|---|---|---|---|---|---|---|---|---|",
                   f"| position_controller_node (sample -> command) | {ctl_t['sent']} | {ctl_t['received']} | "
@@ -467,9 +488,7 @@ def main() -> None:
                   f"{model_t['median_ms']:.3f} | {model_t['p99_ms']:.3f} | {model_t['max_ms']:.2f} | | | |",
                   "", f"Latency ratio controller / model_node: median {ctl_t['median_ms'] / model_t['median_ms']:.2f}x, "
                   f"p99 {ctl_t['p99_ms'] / model_t['p99_ms']:.2f}x."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    Path(args.out).write_text(text)
+    return lines
 
 
 if __name__ == "__main__":

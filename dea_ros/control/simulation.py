@@ -18,7 +18,7 @@ from typing import Callable, Optional
 import numpy as np
 
 from ..hardware.amplifier_safety import SafeVoltageController, SafetyLimits
-from ..model import MembraneParameters, static_equilibrium
+from ..model import MembraneParameters
 from ..solvers.integrate import RealTimeStepper
 
 __all__ = ["SimulatedRig", "ClosedLoopResult", "run_closed_loop"]
@@ -123,7 +123,3 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
             plant.step(u_applied, h)
     return ClosedLoopResult(t_out[:j], true[:j], meas[:j], cmd[:j], applied[:j])
 
-
-def rest_displacement_m(params: MembraneParameters, voltage_V: float) -> float:
-    """Static displacement of the plant at a constant voltage (convenience for benchmarks)."""
-    return float(static_equilibrium(params, voltage_V).displacement_m)
