@@ -8,7 +8,9 @@ voltage for amplifier_node, whose safety limits (maximum, slew, watchdog) still 
 Topics (relative: namespace ``/dea`` in the launch files; SI units):
 
 * subscribes ``displacement`` (sensor_msgs/Range, ``range`` in m, + downwards, stamped with the
-  acquisition time): the measurement; the control step runs in its callback;
+  acquisition time): the measurement; the control step runs in its callback, on the newest sample
+  only (best effort, depth 1: a late node skips samples instead of acting on old ones; counted as
+  ``skipped_samples``);
 * subscribes ``displacement_setpoint`` (std_msgs/Float64, m): a target position, shaped into the
   fastest move the actuator can follow (or refused, with the reason, when outside the range);
 * subscribes ``joint_trajectory`` (trajectory_msgs/JointTrajectory, one prismatic joint
@@ -38,6 +40,7 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import BatteryState, JointState, Range
 from std_msgs.msg import Float64
 from trajectory_msgs.msg import JointTrajectory
@@ -65,6 +68,10 @@ from .common import (
 )
 
 __all__ = ["PositionControllerNode", "main", "TOPIC_SETPOINT", "TOPIC_TRAJECTORY", "TOPIC_JOINT_STATES"]
+
+#: the control step acts on the newest sample only: a backlog of older samples would only add delay
+LATEST_ONLY_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST, depth=1,
+                             durability=DurabilityPolicy.VOLATILE)
 
 TOPIC_SETPOINT = "displacement_setpoint"
 TOPIC_TRAJECTORY = "joint_trajectory"
@@ -122,6 +129,7 @@ class PositionControllerNode(LifecycleNode):
         self.samples = 0
         self.commands = 0
         self.stale_samples = 0
+        self.skipped_samples = 0                    # never seen (gaps in the stamps: dropped or overtaken)
         self.invalid_samples = 0
         self.sensor_losses = 0
         self.refused = 0
@@ -169,10 +177,11 @@ class PositionControllerNode(LifecycleNode):
         if self.p("publish_stamped_command"):
             self.stamped_pub = self.create_lifecycle_publisher(BatteryState, "~/command_stamped", SENSOR_QOS)
         self.own_subs = [
-            self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement, SENSOR_QOS),
+            self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement, LATEST_ONLY_QOS),
             self.create_subscription(Float64, TOPIC_SETPOINT, self.on_setpoint, COMMAND_QOS),
             self.create_subscription(JointTrajectory, TOPIC_TRAJECTORY, self.on_trajectory, COMMAND_QOS),
         ]
+        self.sample_period_s = float(self.p("sample_period_s"))
         timeout = float(self.p("sensor_timeout_s"))
         self.own_timers = [
             self.create_timer(max(timeout / 4.0, 0.001), self.check_sensor),
@@ -265,7 +274,7 @@ class PositionControllerNode(LifecycleNode):
         """
         if self.last_sample_t is None:
             return self.now_s()
-        return self.last_sample_t + float(self.p("sample_period_s"))
+        return self.last_sample_t + self.sample_period_s
 
     def on_trajectory(self, msg: JointTrajectory) -> None:
         if not self.active or self.ctl is None:
@@ -321,6 +330,9 @@ class PositionControllerNode(LifecycleNode):
         if self.last_sample_t is not None and t <= self.last_sample_t:
             self.stale_samples += 1
             return
+        period = float(self.sample_period_s)
+        if self.last_sample_t is not None and t - self.last_sample_t > 1.5 * period:
+            self.skipped_samples += int(round((t - self.last_sample_t) / period)) - 1
         if self.last_sample_t is not None and t - self.last_sample_t < 0.1 and math.isfinite(self.last_measured_m):
             dt = t - self.last_sample_t
             a = dt / (dt + 0.005)        # velocity for joint_states: first-order filter, 5 ms
@@ -404,7 +416,8 @@ class PositionControllerNode(LifecycleNode):
             ("u2_feedforward_V2", f"{out.u2_feedforward_V2:.4g}" if out else "nan"),
             ("u2_feedback_V2", f"{out.u2_feedback_V2:.4g}" if out else "nan"),
             ("samples", self.samples), ("commands", self.commands), ("saturated_commands", self.saturations),
-            ("stale_samples", self.stale_samples), ("invalid_samples", self.invalid_samples),
+            ("stale_samples", self.stale_samples), ("skipped_samples", self.skipped_samples),
+            ("invalid_samples", self.invalid_samples),
             ("sensor_losses", self.sensor_losses), ("refused", self.refused), ("last_refusal", self.last_refusal),
             ("last_accepted", self.last_accept), ("reachable_min_m", f"{lo:.9f}"), ("reachable_max_m", f"{hi:.9f}"),
             ("max_voltage_V", f"{self.ctl.max_voltage_V:.1f}"), ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"),
