@@ -156,9 +156,8 @@ class PositionController:
         move, feas = plan_move(self.inverse, t_s, state, target_m, self.max_voltage_V,
                                self.reference_slew_V_per_s, self.config.min_move_time_s, eps1=eps)
         self._set_trajectory(move, t_s, eps)
-        shaped = move.duration_s > self.config.min_move_time_s * 1.0001
         return (f"move to {target_m * 1e6:.1f} um in {move.duration_s * 1e3:.1f} ms"
-                + (" (lengthened to stay feasible: u^2 >= 0, voltage and slew limits)" if shaped else ""))
+                + (f" ({feas.message})" if feas.message != "ok" else ""))
 
     def set_trajectory(self, t_s: float, trajectory: Trajectory) -> str:
         """Follow ``trajectory`` (absolute times) from now on; refused with the reason when infeasible.

@@ -21,6 +21,7 @@ feasible :class:`QuinticMove` (its duration grows until the check passes).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -308,6 +309,9 @@ def plan_move(inverse: ModelInverse, start_s: float, state, target_m: float, max
         move = QuinticMove(start_s, d0, target_m, duration, v0, a0)
         feas = check_trajectory(move, inverse, max_voltage_V, slew_rate_V_per_s, eps1=eps1, what="move")
         if feas.ok:
+            if last is not None:   # say why it was lengthened
+                feas = dataclasses.replace(feas, message=f"lengthened: {duration / growth * 1e3:.1f} ms fails: "
+                                                         f"{last.message}")
             return move, feas
         last = feas
         duration *= growth
