@@ -331,6 +331,146 @@ def bench_controller_timing(seconds, env, params_file, d):
             "period_p99_ms": float(np.percentile(gaps, 99)), "period_std_ms": float(np.std(gaps))}
 
 
+# ----------------------------------------------------------------------------- the ROS mock rig, simulated time
+def mock_rig(args, params_file, levels, mid):
+    """(c) through ROS: mock_hardware_node (simulated time, lockstep with the amplifier, the controller and
+    this driver), amplifier_node (mock backend), position_controller_node with config/position_controller.yaml.
+    Noise-free laser (quantisation only), so the measured displacement is the true one."""
+    import rclpy
+    from builtin_interfaces.msg import Duration
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import Range
+    from std_msgs.msg import Float64, Header
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS
+    from dea_ros.rig import RigProcesses  # the demo's process runner
+
+    import socket
+
+    ns = "/dea_bench"
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:   # a free UDP port for the mock amplifier
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    rig = RigProcesses(namespace=ns, quiet=True)
+    rig.start("mock_hardware_node", {
+        "params_file": args.truth, "amplifier_port": port, "noise_m": 0.0, "sample_rate_hz": 1000.0,
+        "publish_clock": True, "real_time_factor": 1.0, "laser_output": "topic", "clock_rate_hz": 1000.0,
+        "lockstep_timeout_s": 0.5})
+    time.sleep(1.0)
+    rig.start("amplifier_node", {"use_sim_time": True, "params_file": params_file, "backend": "mock",
+                                 "mock_port": port, "autostart": True, "update_rate_hz": 1000.0,
+                                 "slew_rate_V_per_s": args.slew, "ramp_down_rate_V_per_s": 20000.0,
+                                 "watchdog_timeout_s": 0.5})
+    cfg = str(ROOT / "config" / "position_controller.yaml")
+    ctl_cmd = [sys.executable, "-m", "dea_ros.nodes.position_controller_node", "--ros-args", "--params-file", cfg,
+               "-p", "use_sim_time:=true", "-p", f"params_file:={params_file}", "-p", "autostart:=true",
+               "-p", "lockstep_ack:=true", "-p", f"slew_rate_V_per_s:={args.slew}",
+               "-p", "publish_stamped_command:=true", "-r", f"__ns:={ns}"]
+    if args.mock_loop_delay_ms is not None:
+        ctl_cmd[-2:-2] = ["-p", f"loop_delay_s:={args.mock_loop_delay_ms * 1e-3}"]
+    ctl = subprocess.Popen(ctl_cmd, env=rig.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rclpy.init()
+    node = Node("bench_driver", namespace=ns, parameter_overrides=[Parameter("use_sim_time", value=True)])
+    samples = []
+    events = []                               # (time, kind, value)
+    ack = node.create_publisher(Header, "~/tick_done", 10)
+    set_pub = node.create_publisher(Float64, "displacement_setpoint", COMMAND_QOS)
+    traj_pub = node.create_publisher(JointTrajectory, "joint_trajectory", COMMAND_QOS)
+    sine_f, sine_start = 10.0, None
+    sine = None
+    plan = [(0.5 + k * HOLD_S, "set", lv) for k, lv in enumerate(levels)]
+    t_mid = plan[-1][0] + HOLD_S
+    plan.append((t_mid, "set", mid))
+    plan.append((t_mid + 0.5, "sine", None))
+    t_end = t_mid + 0.5 + 0.01 + 2.0 / sine_f + 1.2
+    state = {"t0": None, "i": 0}
+
+    def on_sample(msg):
+        t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        if state["t0"] is None:
+            state["t0"] = t
+        rel = t - state["t0"]
+        samples.append((rel, msg.range))
+        while state["i"] < len(plan) and rel >= plan[state["i"]][0]:
+            _, kind, value = plan[state["i"]]
+            state["i"] += 1
+            if kind == "set":
+                set_pub.publish(Float64(data=float(value)))
+                events.append((rel, "set", value))
+            else:
+                nonlocal sine, sine_start
+                sine_start = rel + 0.01
+                sine = SineReference(mid, 30e-6, sine_f, start_s=sine_start, fade_periods=2.0)
+                traj = JointTrajectory(joint_names=["dea_joint"])
+                start_abs = state["t0"] + sine_start
+                traj.header.stamp.sec = int(start_abs)
+                traj.header.stamp.nanosec = int(round((start_abs - int(start_abs)) * 1e9))
+                for tt in np.arange(0.002, 2.0 / sine_f + 1.2, 0.002):
+                    d, v, a = sine.sample(sine_start + tt)
+                    pt = JointTrajectoryPoint(positions=[d], velocities=[v], accelerations=[a])
+                    pt.time_from_start = Duration(sec=int(tt), nanosec=int(round((tt - int(tt)) * 1e9)))
+                    traj.points.append(pt)
+                traj_pub.publish(traj)
+                events.append((rel, "sine", sine_start))
+        ack.publish(Header(stamp=msg.header.stamp, frame_id="bench_driver"))
+
+    node.create_subscription(Range, "displacement", on_sample, SENSOR_QOS)
+    from sensor_msgs.msg import BatteryState
+
+    applied, commands = [], []    # (stamp, V): amplifier output when applied; command with its sample's stamp
+    node.create_subscription(BatteryState, "voltage", lambda m: applied.append(
+        (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(m.voltage))), SENSOR_QOS)
+    node.create_subscription(BatteryState, "position_controller_node/command_stamped", lambda m: commands.append(
+        (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(m.voltage))), SENSOR_QOS)
+    wall0 = time.monotonic()
+    try:
+        while (not samples or samples[-1][0] < t_end) and time.monotonic() - wall0 < 1800:
+            rclpy.spin_once(node, timeout_sec=0.05)
+            if rig.check_alive() or ctl.poll() is not None:
+                raise RuntimeError(f"mock rig: {rig.check_alive() or 'position_controller_node exited'}")
+    finally:
+        wall = time.monotonic() - wall0
+        ctl.send_signal(2)
+        try:
+            ctl.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            ctl.kill()
+        rig.stop()
+        node.destroy_node()
+        rclpy.shutdown()
+    t = np.array([x[0] for x in samples])
+    d = np.array([x[1] for x in samples])
+    sim_s = float(t[-1]) if t.size else 0.0
+    steps = []
+    set_events = [e for e in events if e[1] == "set"]
+    for k in range(1, len(levels)):
+        t_cmd = set_events[k][0]
+        m = (t >= t_cmd) & (t < t_cmd + HOLD_S)
+        tt, e = t[m] - t_cmd, d[m] - levels[k]
+        size = levels[k] - levels[k - 1]
+        over = max(0.0, float(np.max(np.sign(size) * e))) / abs(size) * 100
+        outside = np.nonzero(np.abs(e) > 0.02 * abs(size))[0]
+        settle = math.inf if outside.size and outside[-1] >= tt.size - 1 else \
+            (float(tt[outside[-1]] + 1e-3) if outside.size else 0.0)
+        steps.append((over, settle))
+    m = (t >= sine_start + 2.0 / sine_f + 0.1) & (t <= sine_start + 2.0 / sine_f + 1.1)
+    err = d[m] - sine.sample_many(t[m])[0]
+    # effective delay: an applied voltage equal to a command (not slew-limited) -> applied time - sample time
+    cmd_t = np.array([c[0] for c in commands])
+    cmd_u = np.array([c[1] for c in commands])
+    delays = []
+    for ta, ua in applied:
+        k = np.nonzero((np.abs(cmd_u - ua) < 0.02) & (cmd_t <= ta + 1e-9) & (cmd_t > ta - 0.01))[0]
+        if k.size == 1:
+            delays.append(round((ta - cmd_t[k[0]]) * 1e3, 1))
+    vals, counts = np.unique(np.array(delays), return_counts=True) if delays else (np.array([]), np.array([]))
+    delay_text = ", ".join(f"{v:g} ms: {100 * c / max(len(delays), 1):.0f} %" for v, c in zip(vals, counts) if c > 0.01 * len(delays))
+    return {"delay": delay_text, "steps": steps, "sine_rms": float(np.sqrt(np.mean(err ** 2))), "sine_max": float(np.max(np.abs(err))),
+            "sim_s": sim_s, "wall_s": wall, "samples": int(t.size)}
+
+
 # ----------------------------------------------------------------------------- main
 def fmt_s(x):
     return "never" if not math.isfinite(x) else f"{x * 1e3:.0f}"
@@ -346,6 +486,10 @@ def main() -> None:
     ap.add_argument("--pid-evals", type=int, default=120)
     ap.add_argument("--timing-s", type=float, default=30.0, help="0: skip the node timing")
     ap.add_argument("--timing-only", action="store_true", help="only part 2 (writes control_timing.md)")
+    ap.add_argument("--mock-loop-delay-ms", type=float, default=None,
+                    help="loop_delay_s of the node on the mock rig (default: config/position_controller.yaml)")
+    ap.add_argument("--mock-rig-only", action="store_true",
+                    help="only (c) through the ROS mock rig in simulated time (writes control_mock_rig.md)")
     ap.add_argument("--out", default=None, help="default bench/results/control.md (control_timing.md)")
     args = ap.parse_args()
     params_file = args.params
@@ -355,7 +499,8 @@ def main() -> None:
             sys.exit("no runs/*/params.yaml: run ./scripts/run_demo.sh first or pass --params")
         params_file = found[-1]
     if args.out is None:
-        args.out = str(HERE / "results" / ("control_timing.md" if args.timing_only else "control.md"))
+        args.out = str(HERE / "results" / ("control_timing.md" if args.timing_only else
+                                           "control_mock_rig.md" if args.mock_rig_only else "control.md"))
     ident = load_parameters(params_file)
     truth = load_parameters(args.truth)
     results_dir = Path(args.out).parent
@@ -373,7 +518,22 @@ def main() -> None:
     rig0 = SimulatedRig(truth, U_MAX, slew_rate_V_per_s=args.slew, latency_s=latency, amplifier_phase_s=phase)
 
     lines = [f"Machine: {machine()}", ""]
-    if not args.timing_only:
+    if args.mock_rig_only:
+        os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+        r = mock_rig(args, params_file, levels, mid)
+        lines += [f"### (c) through the ROS mock rig in simulated time ({r['sim_s']:.1f} s simulated in "
+                  f"{r['wall_s']:.0f} s wall, {r['samples']} laser samples, lockstep; noise-free laser; slew "
+                  f"{args.slew:g} V/s; config/position_controller.yaml"
+                  + (f", loop_delay_s {args.mock_loop_delay_ms:g} ms" if args.mock_loop_delay_ms is not None else "")
+                  + ")", "",
+                  "| step | overshoot [%] | 2 % settling [ms] |", "|---|---|---|"]
+        for (a, b), (over, settle) in zip(zip(levels[:-1], levels[1:]), r["steps"]):
+            lines.append(f"| {a * 1e6:.0f} -> {b * 1e6:.0f} um | {over:.1f} | {fmt_s(settle)} |")
+        lines += ["", f"10 Hz 30 um sine sent as a JointTrajectory (2 ms points): RMS error {r['sine_rms'] * 1e6:.2f} um, "
+                      f"max {r['sine_max'] * 1e6:.2f} um.", "",
+                  f"Sample -> voltage applied by the amplifier (commands matched by value): {r['delay']}."]
+        args.timing_s = 0
+    elif not args.timing_only:
         lines += tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0, phase)
     if args.timing_s > 0:
         lines += timing(args, ident, params_file)

@@ -21,7 +21,9 @@ Topics (relative: namespace ``/dea`` in the launch files; SI units):
   measured position in m and a filtered velocity in m/s, at ``joint_states_rate_hz``) and the
   tracking error and state on ``/diagnostics``; with ``publish_stamped_command`` also
   ``~/command_stamped`` (sensor_msgs/BatteryState: the command in ``voltage``, stamped with the
-  acquisition time of the sample it answers; for latency measurements and bags).
+  acquisition time of the sample it answers; for latency measurements and bags); with
+  ``lockstep_ack`` (simulated time) ``~/tick_done`` (std_msgs/Header) after each command, so that
+  mock_hardware_node's lockstep waits for the controller as it does for the identifier.
 
 Loss of the laser stream for ``sensor_timeout_s``: the node stops commanding (the amplifier's
 watchdog then ramps the voltage down), aborts a running trajectory and reports ERROR; when samples
@@ -42,7 +44,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import BatteryState, JointState, Range
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Header
 from trajectory_msgs.msg import JointTrajectory
 
 from ..control import (
@@ -101,12 +103,15 @@ class PositionControllerNode(LifecycleNode):
         declare_str(self, "joint_name", "dea_joint", "the prismatic joint (URDF) carried by joint_states/trajectories")
         declare_float(self, "joint_states_rate_hz", 100.0, "joint_states publication rate, Hz", 0.1, 2000.0)
         declare_float(self, "diagnostics_rate_hz", 1.0, "diagnostics rate, Hz", 0.1, 50.0)
+        declare_bool(self, "lockstep_ack", False,
+                     "simulated time: publish ~/tick_done (std_msgs/Header, the sample's stamp) after each command, "
+                     "for mock_hardware_node's lockstep_topics")
         declare_bool(self, "publish_stamped_command", False,
                      "also publish ~/command_stamped (BatteryState: the command stamped with its sample's time)")
         self.ctl: PositionController | None = None
         self.active = False
         self._reset_runtime()
-        self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = None
+        self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = self.ack_pub = None
         self.own_subs = []
         self.own_timers = []
 
@@ -174,6 +179,8 @@ class PositionControllerNode(LifecycleNode):
         self.voltage_pub = self.create_lifecycle_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
         self.joint_pub = self.create_lifecycle_publisher(JointState, TOPIC_JOINT_STATES, 10)
         self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
+        if self.p("lockstep_ack"):
+            self.ack_pub = self.create_lifecycle_publisher(Header, "~/tick_done", 10)
         if self.p("publish_stamped_command"):
             self.stamped_pub = self.create_lifecycle_publisher(BatteryState, "~/command_stamped", SENSOR_QOS)
         self.own_subs = [
@@ -229,11 +236,11 @@ class PositionControllerNode(LifecycleNode):
             self.destroy_timer(t)
         for s in self.own_subs:
             self.destroy_subscription(s)
-        for pub in (self.voltage_pub, self.joint_pub, self.diag_pub, self.stamped_pub):
+        for pub in (self.voltage_pub, self.joint_pub, self.diag_pub, self.stamped_pub, self.ack_pub):
             if pub is not None:
                 self.destroy_publisher(pub)
         self.own_timers, self.own_subs = [], []
-        self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = None
+        self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = self.ack_pub = None
         self.ctl = None
 
     def shutdown_safely(self) -> None:
@@ -348,6 +355,8 @@ class PositionControllerNode(LifecycleNode):
         if self.stamped_pub is not None:   # latency measurements, bags: the command with its sample's stamp
             self.stamped_pub.publish(make_voltage_state(out.voltage_V, msg.header.stamp.sec * 1_000_000_000
                                                         + msg.header.stamp.nanosec, True, "dea_controller"))
+        if self.ack_pub is not None:
+            self.ack_pub.publish(Header(stamp=msg.header.stamp, frame_id=self.get_name()))
         self.commands += 1
         self.last_output = out
         if out.saturated:
