@@ -17,6 +17,7 @@ setup(
         ("share/" + package_name + "/config/protocols", glob("config/protocols/*.yaml")),
         ("share/" + package_name + "/config/rig", glob("config/rig/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
+        ("share/" + package_name + "/urdf", glob("urdf/*.urdf")),
     ],
     # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2
     # is sourced, from requirements-ros-wheels.txt: never from install_requires.
@@ -44,6 +45,7 @@ setup(
             "model_node = dea_ros.nodes.model_node:main",
             "mock_hardware_node = dea_ros.nodes.mock_hardware_node:main",
             "identifier_node = dea_ros.nodes.identifier_node:main",
+            "position_controller_node = dea_ros.nodes.position_controller_node:main",
         ],
     },
 )

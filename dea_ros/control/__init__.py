@@ -1,0 +1,31 @@
+"""Position control of the DEA (no ROS): model inversion, reference shaping, feedback on u^2.
+
+* :mod:`.inverse`: static inverse (eq. 20) with the reachable range, dynamic inverse (eq. 5 solved
+  for u^2) and the viscoelastic strain integrated along the reference (eq. 11);
+* :mod:`.reference`: smooth references (hold, quintic moves, trajectories through points, sines)
+  and the feasibility check (u^2 >= 0, voltage and slew limits);
+* :mod:`.feedback`: PID on u^2 with gains by pole placement on the identified model;
+* :mod:`.controller`: :class:`PositionController`, one call per laser sample;
+* :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier).
+"""
+from .controller import ControllerConfig, ControlOutput, PositionController
+from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
+from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
+from .reference import (
+    Feasibility,
+    Hold,
+    PiecewiseQuintic,
+    QuinticMove,
+    SineReference,
+    Trajectory,
+    check_trajectory,
+    plan_move,
+)
+from .simulation import ClosedLoopResult, SimulatedRig, run_closed_loop
+
+__all__ = [
+    "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
+    "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
+    "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
+    "ClosedLoopResult", "SimulatedRig", "run_closed_loop",
+]

@@ -1,0 +1,125 @@
+"""Closed-loop simulation of the rig without ROS: a controller against a simulated plant.
+
+The plant is the model (eq. 18) with its own, "true" parameters integrated by the core's RK4
+(:class:`~dea_ros.solvers.integrate.RealTimeStepper`, ``physics_dt_s``); the laser samples it every
+``sample_period_s`` with Gaussian noise and quantisation (as ``mock_hardware_node``); the
+controller's command reaches the amplifier ``latency_s`` later; the amplifier is the real safety
+core (:class:`~dea_ros.hardware.amplifier_safety.SafeVoltageController`: maximum, slew limit)
+updating every ``amplifier_period_s`` (offset ``amplifier_phase_s`` from the laser samples) and
+holding its output in between (zero-order hold). All event times are multiples of
+``physics_dt_s``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional
+
+import numpy as np
+
+from ..hardware.amplifier_safety import SafeVoltageController, SafetyLimits
+from ..model import MembraneParameters
+from ..solvers.integrate import RealTimeStepper
+
+__all__ = ["SimulatedRig", "ClosedLoopResult", "run_closed_loop"]
+
+#: ILD1320-10 resolution (10 mm x 1.02 / 65520), as mock_hardware_node
+LASER_QUANTISATION_M = 10e-3 * 1.02 / 65520
+
+
+@dataclass(frozen=True)
+class SimulatedRig:
+    """The simulated rig (SI units). Defaults: the mock rig (1 um noise, ILD1320 quantisation,
+    1 kHz laser and amplifier, 100 kV/s slew)."""
+
+    params: MembraneParameters
+    max_voltage_V: float
+    slew_rate_V_per_s: float = 1e5
+    physics_dt_s: float = 2.5e-4
+    sample_period_s: float = 1e-3
+    noise_m: float = 1e-6
+    quantisation_m: float = LASER_QUANTISATION_M
+    latency_s: float = 2.5e-4
+    amplifier_period_s: float = 1e-3
+    amplifier_phase_s: float = 5e-4
+    seed: int = 0
+
+    def ticks(self, seconds: float) -> int:
+        n = seconds / self.physics_dt_s
+        if abs(n - round(n)) > 1e-6:
+            raise ValueError(f"{seconds} s is not a multiple of physics_dt_s = {self.physics_dt_s} s")
+        return int(round(n))
+
+
+@dataclass
+class ClosedLoopResult:
+    """Per laser sample: time, true and measured displacement, command, applied voltage."""
+
+    time_s: np.ndarray
+    true_m: np.ndarray
+    measured_m: np.ndarray
+    command_V: np.ndarray          # NaN where the controller sent nothing
+    applied_V: np.ndarray          # amplifier output at the sample time
+
+
+def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Optional[float]],
+                    duration_s: float, initial_voltage_V: float = 0.0,
+                    applied_hook: Optional[Callable[[float, float], None]] = None) -> ClosedLoopResult:
+    """Simulate ``duration_s`` from rest at ``initial_voltage_V``.
+
+    ``controller(t_k, measured_m)`` is called at every laser sample and returns a voltage command
+    (V) or None (nothing sent). The amplifier starts active at ``initial_voltage_V``.
+    """
+    h = rig.physics_dt_s
+    n_sample = rig.ticks(rig.sample_period_s)
+    n_lat = rig.ticks(rig.latency_s)
+    n_amp = rig.ticks(rig.amplifier_period_s)
+    n_phase = rig.ticks(rig.amplifier_phase_s) % n_amp
+    n_total = rig.ticks(round(duration_s / rig.sample_period_s) * rig.sample_period_s)
+    plant = RealTimeStepper(rig.params, dt_s=h, initial_voltage_V=initial_voltage_V)
+    limits = SafetyLimits(max_voltage_V=rig.max_voltage_V, slew_rate_V_per_s=rig.slew_rate_V_per_s,
+                          watchdog_timeout_s=60.0, ramp_down_rate_V_per_s=rig.slew_rate_V_per_s)
+    amp = SafeVoltageController(limits)
+    # the amplifier has been holding initial_voltage_V (no slew from 0 V at t = 0)
+    t_pre = initial_voltage_V / rig.slew_rate_V_per_s + 0.01
+    amp.activate(-t_pre)
+    amp.command(initial_voltage_V, -t_pre)
+    for k in range(int(math.ceil(t_pre / 0.005)) + 1):
+        amp.update(min(-t_pre + k * 0.005, 0.0))
+    rng = np.random.default_rng(rig.seed)
+    n_samples = n_total // n_sample + 1
+    t_out = np.empty(n_samples)
+    true = np.empty(n_samples)
+    meas = np.empty(n_samples)
+    cmd = np.full(n_samples, np.nan)
+    applied = np.empty(n_samples)
+    pending: list = []          # (arrival tick, voltage)
+    u_applied = amp.update(0.0)
+    q = rig.quantisation_m
+    j = 0
+    for i in range(n_total + 1):
+        t = i * h
+        if pending and pending[0][0] == i:
+            amp.command(pending.pop(0)[1], t)
+        if i % n_amp == n_phase:
+            u_applied = amp.update(t)
+            if applied_hook is not None:
+                applied_hook(t, u_applied)
+        if i % n_sample == 0:
+            d = plant.state[0]
+            m = d + (float(rng.normal(0.0, rig.noise_m)) if rig.noise_m > 0 else 0.0)
+            if q > 0:
+                m = round(m / q) * q
+            t_out[j], true[j], meas[j], applied[j] = t, d, m, u_applied
+            u_cmd = controller(t, m)
+            if u_cmd is not None:
+                cmd[j] = u_cmd
+                if n_lat == 0:
+                    amp.command(u_cmd, t)
+                else:
+                    pending.append((i + n_lat, u_cmd))
+            j += 1
+        if i < n_total:
+            plant.step(u_applied, h)
+    return ClosedLoopResult(t_out[:j], true[:j], meas[:j], cmd[:j], applied[:j])
+
