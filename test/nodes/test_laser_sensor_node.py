@@ -32,6 +32,7 @@ def test_serial_path_delivers_the_mock_membrane_at_2kHz(ros_context, spin_until,
     while time.monotonic() < t_end:
         ex.spin_once(timeout_sec=0.002)
     assert laser.connected
+    print('DEBUG', laser.error_counts, laser.diagnostic_values())
     n = len(got)
     assert n > 2000 * 1.5, f"only {n} samples in 2 s at 2 kHz"
     t = np.array([stamp_to_s(m.header.stamp) for m in got])
