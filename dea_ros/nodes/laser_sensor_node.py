@@ -61,6 +61,13 @@ _BACKOFF_INITIAL_S = 0.5
 _BACKOFF_MAX_S = 5.0
 #: A sensor that does not match the configuration is retried this slowly.
 _MISMATCH_RETRY_S = 10.0
+#: Mapping of acquisition times (time.monotonic) to ROS time: a measurement of the offset counts
+#: only when the two clock reads were at most this far apart (no preemption between them) ...
+_OFFSET_BRACKET_S = 200e-6
+#: ... and moves the offset by at most this much per batch (stamps stay increasing: samples are
+#: >= 250 us apart), unless it differs by more than _OFFSET_JUMP_S (the ROS clock was set).
+_OFFSET_SLEW_S = 20e-6
+_OFFSET_JUMP_S = 0.1
 
 
 class LaserSensorNode(Node):
@@ -109,6 +116,7 @@ class LaserSensorNode(Node):
         self.connected = False
         self.mismatch = False  # the connected sensor does not match the parameters
         self.last_error = ""
+        self.time_offset_s = None  # ROS time - time.monotonic(), s
         self.connect()
         self.create_timer(poll, self.on_poll)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -183,8 +191,7 @@ class LaserSensorNode(Node):
             return
         if not batch:
             return
-        # acquisition times are on time.monotonic(): map to ROS time once per batch
-        offset_s = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
+        offset_s = self.update_time_offset()
         for reading in batch:
             if reading.is_valid:
                 t_ns = int(round((reading.acquisition_time_s + offset_s) * 1e9))
@@ -193,6 +200,24 @@ class LaserSensorNode(Node):
             else:
                 key = reading.error.value
                 self.error_counts[key] = self.error_counts.get(key, 0) + 1
+
+    def update_time_offset(self) -> float:
+        """ROS time minus time.monotonic() (s), measured once per batch, filtered.
+
+        Acquisition times are on time.monotonic(). A measurement interrupted between its two clock
+        reads (a loaded machine) is ignored, and the offset slews slowly, so the published stamps
+        keep the spacing of the acquisition times instead of the jitter of the scheduler.
+        """
+        before = time.monotonic()
+        ros_s = self.get_clock().now().nanoseconds * 1e-9
+        after = time.monotonic()
+        measured = ros_s - 0.5 * (before + after)
+        if self.time_offset_s is None or abs(measured - self.time_offset_s) > _OFFSET_JUMP_S:
+            self.time_offset_s = measured
+        elif after - before <= _OFFSET_BRACKET_S:
+            step = measured - self.time_offset_s
+            self.time_offset_s += max(-_OFFSET_SLEW_S, min(_OFFSET_SLEW_S, step))
+        return self.time_offset_s
 
     def on_tare(self, _req, resp):
         if not self.connected:
