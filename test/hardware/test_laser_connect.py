@@ -52,9 +52,14 @@ def read_for(dev: ILD1320Sensor, seconds: float):
     return readings
 
 
+def slow_truth(t_s: float) -> float:
+    """4 mm +- 0.5 mm at 0.2 Hz: at most 0.63 mm/s, so a 50 ms stamp error is < 32 um."""
+    return 0.004 + 0.0005 * math.sin(2.0 * math.pi * 0.2 * t_s)
+
+
 def test_a_previous_users_settings_are_reported_then_reset_and_readings_match_the_truth(no_leaked_threads):
     # left by a previous user: zeroed with the target at 3 mm, a counter after every value, errors held
-    with ILD1320Emulator(truth, mastering=(0.003, 0.0), additional_outputs=("COUNTER",), output_hold="0",
+    with ILD1320Emulator(slow_truth, mastering=(0.003, 0.0), additional_outputs=("COUNTER",), output_hold="0",
                          measuring_rate_hz=1000.0) as emu:
         report = describe_ild1320(emu.port_path, LaserSensorExpectation(MR, 2000.0))
         assert report.ok, report.lines()
@@ -72,7 +77,8 @@ def test_a_previous_users_settings_are_reported_then_reset_and_readings_match_th
             valid = [r for r in readings if r.is_valid]
             assert len(valid) > 400 and len(readings) - len(valid) <= 2  # 2 await confirmation
             # the mastered stream would read 2 mm too far (d - 3 mm + 5 mm); after the reset: the truth
-            assert max(abs(r.value - truth(r.acquisition_time_s)) for r in valid) < 30e-6
+            # (the tolerance covers reconstructed stamps off by up to 50 ms on a loaded machine)
+            assert max(abs(r.value - slow_truth(r.acquisition_time_s)) for r in valid) < 0.5 * Q + 32e-6
             assert dev.decoder.additional_values_skipped == additional_before  # none after the reset
             assert dev.describe().to_reset == ()
 
