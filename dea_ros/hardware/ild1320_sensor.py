@@ -590,7 +590,9 @@ class ILD1320Sensor(DisplacementSensor):
         """Close and re-open until frames flow again, with exponential backoff.
 
         Keeps the tare and the requested measuring rate. Raises
-        :class:`SensorDisconnected` if not connected within ``timeout_s``.
+        :class:`SensorDisconnected` if not connected within ``timeout_s``, and
+        :class:`SensorConfigurationError` at once when the sensor now connected
+        differs from the configuration (retrying cannot help).
         """
         deadline = time.monotonic() + float(timeout_s)
         backoff = float(initial_backoff_s)
@@ -606,6 +608,9 @@ class ILD1320Sensor(DisplacementSensor):
                 if self._wait_for_frames(min(max(deadline - time.monotonic(), 0.0), self.no_data_timeout_s)):
                     return
                 raise SensorDisconnected(f"ILD1320 on {self._port} opened but sends no data")
+            except SensorConfigurationError:
+                self._close_port()
+                raise
             except SensorError as exc:
                 last_error = exc
                 self._close_port()

@@ -151,6 +151,7 @@ class LaserSensorNode(Node):
             self.mismatch = True
             return False
         except Exception as exc:  # noqa: BLE001 - a bad reply (or anything else) must not end the node
+            self.mismatch = False
             self._connect_failed(exc, "cannot open the sensor", self.backoff_s)
             self.backoff_s = min(self.backoff_s * 2.0, _BACKOFF_MAX_S)
             return False
@@ -235,10 +236,20 @@ class LaserSensorNode(Node):
         self.get_logger().info(resp.message)
         return resp
 
-    def diagnostic_values(self) -> list[tuple[str, int]]:
-        """(key, count) pairs published on /diagnostics: node counts, discards per reason, backend counters."""
-        values = [("published", self.published), ("disconnects", self.disconnects),
-                  ("connect_failures", self.connect_failures)]
+    def diagnostic_values(self) -> list[tuple[str, object]]:
+        """(key, value) pairs published on /diagnostics: the sensor found at the last connect, node
+        counts, discards per reason (``errors_<reason>``) and the backend's byte/frame counters."""
+        values: list[tuple[str, object]] = []
+        report = getattr(self.sensor, "connect_report", None)
+        if report is not None:
+            found = report.settings
+            values += [("sensor_model", found.model), ("sensor_serial", found.serial_number),
+                       ("sensor_measuring_range_mm", "unknown" if found.measuring_range_m is None
+                        else f"{found.measuring_range_m * 1e3:g}"),
+                       ("reset_on_connect", "; ".join(report.to_reset) or "nothing")]
+            values += [(f"mismatch_{i}", text) for i, text in enumerate(report.mismatches)]
+        values += [("published", self.published), ("disconnects", self.disconnects),
+                   ("connect_failures", self.connect_failures)]
         values += [(f"errors_{k}", v) for k, v in sorted(self.error_counts.items())]
         try:
             counters = self.sensor.diagnostic_counters()

@@ -218,6 +218,9 @@ def test_node_refuses_a_sensor_that_differs_from_its_parameters(rig):
     assert peer.ranges == [] and node.published == 0
     assert peer.statuses[-1].level == DiagnosticStatus.ERROR
     assert peer.statuses[-1].message.startswith("refused:") and "measuring_range_m" in peer.statuses[-1].message
+    found = peer.last_values()
+    assert found["sensor_model"] == "ILD1320-10" and found["sensor_measuring_range_mm"] == "1000"
+    assert "1000 mm" in found["mismatch_0"] or "1000 mm" in found["mismatch_1"]
     # a rate the ILD1320 does not have is refused at start-up, naming the parameter
     with pytest.raises(SystemExit, match="measuring_rate_hz"):
         make_node(measuring_rate_hz=700.0)
