@@ -461,7 +461,10 @@ class ILD1320Emulator:
             if ignored_commands is not _UNSET:
                 self._ignored_commands = frozenset(str(c).upper() for c in (ignored_commands or ()))
             if reply_overrides is not _UNSET:
-                self._reply_overrides = {str(k).upper(): bytes(v) for k, v in (reply_overrides or {}).items()}
+                self._reply_overrides = {
+                    str(k).upper(): v.encode("latin-1") if isinstance(v, str) else bytes(v)
+                    for k, v in (reply_overrides or {}).items()
+                }
             for name, value in (("drop", drop_byte_probability), ("random", random_byte_probability)):
                 if value is _UNSET:
                     continue
