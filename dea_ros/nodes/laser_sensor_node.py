@@ -117,6 +117,7 @@ class LaserSensorNode(Node):
         self.mismatch = False  # the connected sensor does not match the parameters
         self.last_error = ""
         self.time_offset_s = None  # ROS time - time.monotonic(), s
+        self.zero_applied = False
         self.connect()
         self.create_timer(poll, self.on_poll)
         self.create_timer(1.0, self.publish_diagnostics)
@@ -144,8 +145,10 @@ class LaserSensorNode(Node):
         """Open and check the sensor; on any failure log it, stay alive and retry later."""
         try:
             self.sensor.open()
-            if self.zero_offset_m >= 0.0:
+            if self.zero_offset_m >= 0.0 and not self.zero_applied:
+                # once: a tare made later (service ~/tare) survives reconnects
                 self.sensor.set_tare(self.zero_offset_m)
+                self.zero_applied = True
         except SensorConfigurationError as exc:
             self._connect_failed(exc, "the sensor does not match the parameters", _MISMATCH_RETRY_S)
             self.mismatch = True
@@ -216,11 +219,14 @@ class LaserSensorNode(Node):
             after = time.monotonic()
             if after - before < bracket:
                 bracket, measured = after - before, ros_s - 0.5 * (before + after)
-        if self.time_offset_s is None or abs(measured - self.time_offset_s) > _OFFSET_JUMP_S:
+        if self.time_offset_s is None:
             self.time_offset_s = measured
-        elif bracket <= _OFFSET_BRACKET_S:
+        elif bracket <= _OFFSET_BRACKET_S:  # a preempted measurement says nothing
             step = measured - self.time_offset_s
-            self.time_offset_s += max(-_OFFSET_SLEW_S, min(_OFFSET_SLEW_S, step))
+            if abs(step) > _OFFSET_JUMP_S:
+                self.time_offset_s = measured
+            else:
+                self.time_offset_s += max(-_OFFSET_SLEW_S, min(_OFFSET_SLEW_S, step))
         return self.time_offset_s
 
     def on_tare(self, _req, resp):

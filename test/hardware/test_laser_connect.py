@@ -25,6 +25,9 @@ from dea_ros.hardware.laser import MeasurementError, SensorConfigurationError, S
 
 MR = 0.010
 Q = quantum_m(MR)
+#: Silence that counts as a disconnect in these tests: generous, a loaded machine can starve the
+#: emulator thread for 0.3 s (disconnects are tested in test_laser_emulator.py).
+NO_DATA_S = 3.0
 
 
 def truth(t_s: float) -> float:
@@ -68,7 +71,8 @@ def test_a_previous_users_settings_are_reported_then_reset_and_readings_match_th
         assert (s.additional_outputs, s.output_hold, s.mastering) == (("COUNTER",), "0", "MASTER 0.000000")
         assert len(report.to_reset) == 4  # rate, additional outputs, hold, mastering
         assert emu.mastering is not None  # describing changes nothing
-        with ILD1320Sensor(emu.port_path, measuring_range_m=MR, measuring_rate_hz=2000.0) as dev:
+        with ILD1320Sensor(emu.port_path, measuring_range_m=MR, measuring_rate_hz=2000.0,
+                           min_no_data_timeout_s=NO_DATA_S) as dev:
             assert dev.connect_report is not None and len(dev.connect_report.to_reset) == 4
             assert emu.mastering is None and emu.additional_outputs == () and emu.output_hold == "NONE"
             assert emu.measuring_rate_hz == 2000.0
@@ -145,7 +149,8 @@ def test_settings_that_do_not_read_back_and_garbage_replies_are_errors(no_leaked
 
 
 def test_a_corrupted_stream_never_yields_a_value_far_from_the_truth(no_leaked_threads):
-    with ILD1320Emulator(truth, seed=3) as emu, ILD1320Sensor(emu.port_path, measuring_range_m=MR) as dev:
+    with ILD1320Emulator(truth, seed=3) as emu, ILD1320Sensor(
+            emu.port_path, measuring_range_m=MR, min_no_data_timeout_s=NO_DATA_S) as dev:
         read_for(dev, 0.05)
         emu.misbehave(drop_byte_probability=0.01, random_byte_probability=0.01)
         for _ in range(5):
