@@ -23,9 +23,9 @@ counts them per reason (``errors_<reason>``) next to the backend's byte/frame co
 Parameters (all read-only: what a parameter read reports is what runs): ``port`` (e.g.
 /dev/ttyUSB0, or the mock's /tmp/dea_ros_mock_laser), ``baudrate``, ``measuring_rate_hz`` (250,
 500, 1000, 2000), ``measuring_range_m`` (of the head: 0.01 for the ILD1320-10), ``zero_offset_m``
-(the distance reading of the flat membrane: displacement = reading - zero_offset; -1 keeps the
-sensor's current tare), ``max_speed_m_per_s`` and ``jump_tolerance_m`` (plausibility),
-``poll_period_s``, ``backend`` (``ild1320`` or ``mock``), ``frame_id``. Service ``~/tare``
+(the distance reading of the flat membrane: displacement = reading - zero_offset, applied at the
+first connect; -1 keeps the backend's tare; a later ``~/tare`` survives reconnects),
+``max_speed_m_per_s`` and ``jump_tolerance_m`` (plausibility), ``poll_period_s``, ``backend`` (``ild1320`` or ``mock``), ``frame_id``. Service ``~/tare``
 (std_srvs/Trigger): zero on the current position (averaging).
 """
 from __future__ import annotations
