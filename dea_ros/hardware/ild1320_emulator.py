@@ -7,7 +7,9 @@
 ``/tmp/dea_ros_mock_laser`` -- exactly like the device:
 
 * it answers the ASCII commands ``GETINFO``, ``MEASRATE [kHz]``,
-  ``LASERPOW [FULL|OFF]`` and ``OUTPUT [NONE|RS422|ANALOG]`` with the reply format
+  ``LASERPOW [FULL|OFF]``, ``OUTPUT [NONE|RS422|ANALOG]``, ``OUTADD_RS422
+  [NONE|<values>]``, ``OUTHOLD [NONE|0|<n>]`` and ``MASTERMV [NONE|MASTER <mm>]``
+  with the reply format
   of :mod:`~dea_ros.hardware.ild1320_protocol` (body lines, CR LF, ``->``), and an
   ``Exxx`` error for unknown commands or invalid parameters (the error numbers
   :data:`ERROR_UNKNOWN_COMMAND` etc. are this emulator's choice, not taken from
@@ -23,9 +25,18 @@
   acquisition, like the sensor. Frames are written in batches every
   ``batch_interval_s`` (default 2 ms) to keep the CPU load low; replies are
   written between frames, as the sensor keeps streaming while it answers;
-* fault injection for tests: :meth:`~ILD1320Emulator.inject_garbage`,
-  :meth:`~ILD1320Emulator.corrupt_next` and :meth:`~ILD1320Emulator.pause`
-  (silence: no frames, no replies -- a pulled cable).
+* settings a previous user may have left (constructor arguments, or set with the
+  commands): ``mastering`` (the 18-bit shifted output of a mastered sensor, see
+  :func:`~dea_ros.hardware.ild1320_protocol.mastered_displacement_to_code`),
+  ``additional_outputs`` (values sent after each distance, H flags ``11``) and
+  ``output_hold`` (an error value replaced by the last valid one);
+* fault injection for tests: :meth:`~ILD1320Emulator.inject_garbage` (``raw=True``:
+  truly random bytes that may form frames), :meth:`~ILD1320Emulator.corrupt_next`,
+  :meth:`~ILD1320Emulator.pause` (silence: no frames, no replies -- a pulled
+  cable) and :meth:`~ILD1320Emulator.misbehave`: wrong replies (a ``MEASRATE``
+  query answering 0 or 7 kHz, ``GETINFO`` with another measuring range or model,
+  any raw reply), commands acknowledged but ignored, and random bytes inserted
+  into or dropped from the stream.
 
 :class:`MockDisplacementSensor` implements
 :class:`~dea_ros.hardware.laser.DisplacementSensor` without any serial port: it
@@ -43,17 +54,20 @@ import select
 import threading
 import time
 import tty
-from typing import Callable, NamedTuple, Optional, Union
+from typing import Callable, Iterable, NamedTuple, Optional, Sequence, Union
 
 from dea_ros.hardware.ild1320_protocol import (
     ALLOWED_MEASURING_RATES_HZ,
     DEFAULT_MEASURING_RANGE_M,
+    ERROR_CODES,
     FLAG_L,
     FLAG_M,
+    MAX_RAW_CODE,
     OUTPUT_DELAY_CYCLES,
     code_to_displacement_m,
     displacement_to_code,
     encode_value,
+    mastered_displacement_to_code,
     parse_command_line,
     render_error,
     render_reply,
@@ -93,6 +107,12 @@ ERROR_UNKNOWN_COMMAND = (210, "Unknown command")
 ERROR_WRONG_PARAMETER_COUNT = (220, "Wrong parameter count")
 ERROR_INVALID_PARAMETER = (232, "Invalid parameter value")
 ERROR_LINE_TOO_LONG = (214, "Entered command too long")
+ERROR_TIMEOUT = (104, "Timeout")
+
+#: Additional values the emulator can send (OUTADD_RS422), in output order.
+ADDITIONAL_OUTPUTS = ("SHUTTER", "COUNTER", "TIMESTAMP", "INTENSITY", "STATE", "DIST_RAW")
+
+_UNSET = object()
 
 _MAX_COMMAND_LINE_BYTES = 256
 
@@ -142,6 +162,17 @@ class ILD1320Emulator:
         Keep the last ``record_limit`` emitted samples for tests (0: none).
     seed:
         Seed of the random generator used for garbage and corruption.
+    mastering:
+        ``(master_position_m, master_value_m)``: the sensor is mastered as a
+        previous user left it (``None``: not mastered).
+    additional_outputs:
+        Additional values sent after each distance (``OUTADD_RS422``), e.g.
+        ``("COUNTER",)``.
+    output_hold:
+        ``OUTHOLD`` mode: ``"NONE"`` (errors sent as errors), ``"0"`` (the last
+        valid value is repeated instead of an error) or a number of cycles.
+    model_name:
+        ``GETINFO`` name (default ``ILD1320-<range in mm>``).
     """
 
     def __init__(
@@ -157,6 +188,10 @@ class ILD1320Emulator:
         serial_number: str = "00000000",
         max_catch_up_s: float = 0.5,
         output_buffer_limit_bytes: int = 65536,
+        mastering: Optional[tuple[float, float]] = None,
+        additional_outputs: Sequence[str] = (),
+        output_hold: str = "NONE",
+        model_name: Optional[str] = None,
     ) -> None:
         self._range_m = _check_positive("measuring_range_m", measuring_range_m)
         self._source = displacement_source or _constant_mid_range(self._range_m)
@@ -188,6 +223,20 @@ class ILD1320Emulator:
         # streaming state (guarded by _lock where shared with the API)
         self._laser_on = True
         self._output = "RS422"
+        self._model_name = model_name or f"ILD1320-{self._range_m * 1e3:g}"
+        self._mastering = self._check_mastering(mastering)
+        self._additional = self._check_additional(additional_outputs)
+        self._hold = self._check_hold(output_hold)
+        self._last_valid_code: Optional[int] = None
+        self._held_cycles = 0
+        # misbehaviour (see misbehave())
+        self._reported_rate_khz: Optional[str] = None
+        self._reported_range_mm: Optional[float] = None
+        self._reported_model: Optional[str] = None
+        self._ignored_commands: frozenset[str] = frozenset()
+        self._reply_overrides: dict[str, bytes] = {}
+        self._drop_byte_probability = 0.0
+        self._random_byte_probability = 0.0
         self._segment_t0 = 0.0
         self._segment_next = 0
         self._pause_windows: list[tuple[float, float]] = []
@@ -206,6 +255,9 @@ class ILD1320Emulator:
         self.frames_corrupted = 0
         self.garbage_bytes_injected = 0
         self.bytes_dropped_overflow = 0
+        self.bytes_dropped_fault = 0
+        self.random_bytes_inserted = 0
+        self.additional_values_emitted = 0
         self.commands_received = 0
         self.source_errors = 0
         self.last_source_error: Optional[BaseException] = None
@@ -334,18 +386,110 @@ class ILD1320Emulator:
         with self._lock:
             return self._output
 
-    def inject_garbage(self, n_bytes: int) -> None:
+    @property
+    def mastering(self) -> Optional[tuple[float, float]]:
+        """``(master_position_m, master_value_m)`` while mastered, else ``None``."""
+        with self._lock:
+            return self._mastering
+
+    @property
+    def additional_outputs(self) -> tuple[str, ...]:
+        with self._lock:
+            return self._additional
+
+    @property
+    def output_hold(self) -> str:
+        with self._lock:
+            return self._hold
+
+    def _check_mastering(self, mastering: Optional[tuple[float, float]]) -> Optional[tuple[float, float]]:
+        if mastering is None:
+            return None
+        position, value = (float(v) for v in mastering)
+        if not (math.isfinite(position) and 0.0 <= position <= self._range_m):
+            raise ValueError(f"master position must be in [0, {self._range_m}] m, got {position!r}")
+        if not (math.isfinite(value) and 0.0 <= value <= 2.0 * self._range_m):
+            raise ValueError(f"master value must be in [0, 2 MR] = [0, {2 * self._range_m}] m, got {value!r}")
+        return (position, value)
+
+    @staticmethod
+    def _check_additional(values: Iterable[str]) -> tuple[str, ...]:
+        names = tuple(str(v).upper() for v in values)
+        for name in names:
+            if name not in ADDITIONAL_OUTPUTS:
+                raise ValueError(f"additional output must be one of {ADDITIONAL_OUTPUTS}, got {name!r}")
+        return tuple(n for n in ADDITIONAL_OUTPUTS if n in names)  # output order
+
+    @staticmethod
+    def _check_hold(mode: str) -> str:
+        text = str(mode).strip().upper()
+        if text != "NONE" and not text.isdigit():
+            raise ValueError(f"output_hold must be NONE, 0 or a number of cycles, got {mode!r}")
+        return text if text == "NONE" else str(int(text))
+
+    def misbehave(
+        self,
+        *,
+        reported_rate_khz=_UNSET,
+        reported_range_mm=_UNSET,
+        reported_model=_UNSET,
+        ignored_commands=_UNSET,
+        reply_overrides=_UNSET,
+        drop_byte_probability=_UNSET,
+        random_byte_probability=_UNSET,
+    ) -> None:
+        """Make the emulator misbehave (arguments left out keep their setting; ``None`` restores).
+
+        * ``reported_rate_khz``: text the ``MEASRATE`` query answers (``"0"``, ``"7"``, ...);
+        * ``reported_range_mm``: measuring range in the ``GETINFO`` reply (the
+          stream keeps the true range);
+        * ``reported_model``: name in the ``GETINFO`` reply;
+        * ``ignored_commands``: command names acknowledged but not applied;
+        * ``reply_overrides``: ``{command name: raw reply bytes}`` sent instead of
+          the real reply (include the ``->`` prompt for a complete reply);
+        * ``drop_byte_probability`` / ``random_byte_probability``: each byte of
+          the measurement stream is dropped / preceded by a random byte with this
+          probability.
+        """
+        with self._lock:
+            if reported_rate_khz is not _UNSET:
+                self._reported_rate_khz = None if reported_rate_khz is None else str(reported_rate_khz)
+            if reported_range_mm is not _UNSET:
+                self._reported_range_mm = None if reported_range_mm is None else float(reported_range_mm)
+            if reported_model is not _UNSET:
+                self._reported_model = None if reported_model is None else str(reported_model)
+            if ignored_commands is not _UNSET:
+                self._ignored_commands = frozenset(str(c).upper() for c in (ignored_commands or ()))
+            if reply_overrides is not _UNSET:
+                self._reply_overrides = {
+                    str(k).upper(): v.encode("latin-1") if isinstance(v, str) else bytes(v)
+                    for k, v in (reply_overrides or {}).items()
+                }
+            for name, value in (("drop", drop_byte_probability), ("random", random_byte_probability)):
+                if value is _UNSET:
+                    continue
+                p = 0.0 if value is None else float(value)
+                if not 0.0 <= p < 1.0:
+                    raise ValueError(f"{name}_byte_probability must be in [0, 1), got {value!r}")
+                if name == "drop":
+                    self._drop_byte_probability = p
+                else:
+                    self._random_byte_probability = p
+
+    def inject_garbage(self, n_bytes: int, *, raw: bool = False) -> None:
         """Write ``n_bytes`` random bytes between two frames at the next batch.
 
-        The bytes never form a valid frame by accident (no L, M, H run, also not
-        across the boundary with the bytes written before), so a decoder must
-        drop all of them and lose no real frame.
+        By default the bytes never form a valid frame by accident (no L, M, H run,
+        also not across the boundary with the bytes written before), so a decoder
+        must drop all of them and lose no real frame. With ``raw=True`` they are
+        uniformly random: about one position in 64 starts a frame with valid
+        flag bits that decodes to some value (what a noisy line does).
         """
         n = int(n_bytes)
         if n < 0:
             raise ValueError(f"n_bytes must be >= 0, got {n_bytes!r}")
         with self._lock:
-            self._garbage_requests.append(n)
+            self._garbage_requests.append(-n if raw else n)
         self._wake()
 
     def corrupt_next(self, n_frames: int) -> None:
@@ -465,6 +609,13 @@ class ILD1320Emulator:
             name, params = parse_command_line(raw_line.decode("ascii"))
         except (UnicodeDecodeError, ValueError):
             return render_error(*ERROR_INVALID_PARAMETER)
+        with self._lock:
+            override = self._reply_overrides.get(name)
+            ignored = name in self._ignored_commands and bool(params)
+        if override is not None:
+            return override
+        if ignored:
+            return render_reply()  # acknowledged, not applied
         if name == "GETINFO":
             if params:
                 return render_error(*ERROR_WRONG_PARAMETER_COUNT)
@@ -475,24 +626,96 @@ class ILD1320Emulator:
             return self._cmd_laserpow(params)
         if name == "OUTPUT":
             return self._cmd_output(params)
+        if name == "OUTADD_RS422":
+            return self._cmd_outadd(params)
+        if name == "OUTHOLD":
+            return self._cmd_outhold(params)
+        if name == "MASTERMV":
+            return self._cmd_mastermv(params, now)
         return render_error(*ERROR_UNKNOWN_COMMAND)
 
     def _info_lines(self) -> list[str]:
+        with self._lock:
+            range_mm = self._range_m * 1e3 if self._reported_range_mm is None else self._reported_range_mm
+            model = self._reported_model if self._reported_model is not None else self._model_name
         return [
-            "Name:            ILD1320-10",
+            f"Name:            {model}",
             f"Serial:          {self._serial_number}",
             "Option:          000",
             "Article:         0000000",
             "Cable head:      Wire",
-            f"Measuring range: {self._range_m * 1e3:.2f}mm",
+            f"Measuring range: {range_mm:.2f}mm",
             "Version:         emulator",
             "Hardware-rev:    00",
             "Boot-version:    emulator",
         ]
 
+    def _cmd_outadd(self, params: list[str]) -> bytes:
+        with self._lock:
+            if not params:
+                return render_reply([f"OUTADD_RS422 {' '.join(self._additional) or 'NONE'}"])
+            names = [p.upper() for p in params]
+            if names == ["NONE"]:
+                self._additional = ()
+                return render_reply()
+            try:
+                self._additional = self._check_additional(names)
+            except ValueError:
+                return render_error(*ERROR_INVALID_PARAMETER)
+        return render_reply()
+
+    def _cmd_outhold(self, params: list[str]) -> bytes:
+        if len(params) > 1:
+            return render_error(*ERROR_WRONG_PARAMETER_COUNT)
+        with self._lock:
+            if not params:
+                return render_reply([f"OUTHOLD {self._hold}"])
+            try:
+                self._hold = self._check_hold(params[0])
+            except ValueError:
+                return render_error(*ERROR_INVALID_PARAMETER)
+            self._held_cycles = 0
+        return render_reply()
+
+    def _cmd_mastermv(self, params: list[str], now: float) -> bytes:
+        with self._lock:
+            if not params:
+                if self._mastering is None:
+                    return render_reply(["MASTERMV NONE"])
+                return render_reply([f"MASTERMV MASTER {self._mastering[1] * 1e3:.6f}"])
+            choice = params[0].upper()
+            if choice == "NONE" and len(params) == 1:
+                self._mastering = None
+                self._last_valid_code = None
+                return render_reply()
+        if choice != "MASTER" or len(params) != 2:
+            return render_error(*ERROR_WRONG_PARAMETER_COUNT if choice == "MASTER" else ERROR_INVALID_PARAMETER)
+        try:
+            master_value_m = float(params[1]) * 1e-3
+        except ValueError:
+            return render_error(*ERROR_INVALID_PARAMETER)
+        try:
+            position = self._source(now)
+        except Exception:  # noqa: BLE001 - a faulty source is "no measurement value"
+            position = math.nan
+        if isinstance(position, MeasurementError) or not (
+            math.isfinite(float(position)) and 0.0 <= float(position) <= self._range_m
+        ):
+            return render_error(*ERROR_TIMEOUT)  # no valid value to master within the timeout
+        try:
+            mastering = self._check_mastering((float(position), master_value_m))
+        except ValueError:
+            return render_error(*ERROR_INVALID_PARAMETER)
+        with self._lock:
+            self._mastering = mastering
+            self._last_valid_code = None
+        return render_reply()
+
     def _cmd_measrate(self, params: list[str], now: float) -> bytes:
         if not params:
             with self._lock:
+                if self._reported_rate_khz is not None:
+                    return render_reply([f"MEASRATE {self._reported_rate_khz}"])
                 return render_reply([f"MEASRATE {self._rate_hz / 1000.0:g}"])
         if len(params) != 1:
             return render_error(*ERROR_WRONG_PARAMETER_COUNT)
@@ -552,9 +775,13 @@ class ILD1320Emulator:
             windows = list(self._pause_windows)
             # forget pause windows that are over
             self._pause_windows = [(s, e) for s, e in self._pause_windows if e > now]
-        for n_bytes in garbage:
+        for request in garbage:
+            n_bytes = abs(request)
             if not any(s <= now < e for s, e in windows):
-                self._queue(self._make_garbage(n_bytes))
+                if request < 0:
+                    self._queue(bytes(self._rng.randrange(256) for _ in range(n_bytes)))
+                else:
+                    self._queue(self._make_garbage(n_bytes))
                 self.garbage_bytes_injected += n_bytes
         for n in range(first, end):
             t_acq = segment_t0 + n * period
@@ -575,7 +802,8 @@ class ILD1320Emulator:
             if corrupted:
                 frame = self._corrupt(frame)
                 self.frames_corrupted += 1
-            self._queue(frame)
+            frame += self._additional_frames(code)
+            self._queue(self._stream_faults(frame))
             self.frames_emitted += 1
             if self._record:
                 with self._lock:
@@ -588,14 +816,77 @@ class ILD1320Emulator:
 
     def _sample_code(self, t_acq: float, laser_on: bool) -> int:
         if not laser_on:
-            return displacement_to_code(MeasurementError.LASER_OFF, self._range_m)
-        try:
-            value = self._source(t_acq)
-            return displacement_to_code(value, self._range_m)
-        except Exception as exc:  # a faulty model must not kill the sensor
-            self.source_errors += 1
-            self.last_source_error = exc
-            return displacement_to_code(MeasurementError.CANNOT_CALCULATE, self._range_m)
+            code = displacement_to_code(MeasurementError.LASER_OFF, self._range_m)
+        else:
+            with self._lock:
+                mastering = self._mastering
+            try:
+                value = self._source(t_acq)
+                if mastering is None:
+                    code = displacement_to_code(value, self._range_m)
+                else:
+                    code = mastered_displacement_to_code(value, mastering[0], mastering[1], self._range_m)
+            except Exception as exc:  # a faulty model must not kill the sensor
+                self.source_errors += 1
+                self.last_source_error = exc
+                code = displacement_to_code(MeasurementError.CANNOT_CALCULATE, self._range_m)
+        return self._apply_hold(code)
+
+    def _apply_hold(self, code: int) -> int:
+        with self._lock:
+            hold = self._hold
+            if code not in ERROR_CODES:
+                self._last_valid_code = code
+                self._held_cycles = 0
+                return code
+            if hold == "NONE" or self._last_valid_code is None:
+                return code
+            if hold != "0" and self._held_cycles >= int(hold):
+                return code
+            self._held_cycles += 1
+            return self._last_valid_code
+
+    def _additional_frames(self, code: int) -> bytes:
+        with self._lock:
+            names = self._additional
+        if not names:
+            return b""
+        out = bytearray()
+        for name in names:
+            if name == "COUNTER":
+                values = [self._next_index & MAX_RAW_CODE]
+            elif name == "SHUTTER":
+                values = [1000]  # 100.0 us exposure
+            elif name == "TIMESTAMP":  # two 16-bit words, 10 us units
+                ticks = int(time.monotonic() * 1e5) & 0xFFFFFFFF
+                values = [ticks & 0xFFFF, ticks >> 16]
+            elif name == "INTENSITY":
+                values = [32736]  # 50 %
+            elif name == "STATE":
+                values = [0]
+            else:  # DIST_RAW
+                values = [code]
+            for value in values:
+                out += encode_value(value, additional=True)
+                self.additional_values_emitted += 1
+        return bytes(out)
+
+    def _stream_faults(self, data: bytes) -> bytes:
+        with self._lock:
+            p_drop, p_random = self._drop_byte_probability, self._random_byte_probability
+        if p_drop <= 0.0 and p_random <= 0.0:
+            return data
+        rng = self._rng
+        out = bytearray()
+        for byte in data:
+            if p_random > 0.0 and rng.random() < p_random:
+                out.append(rng.randrange(256))
+                self.random_bytes_inserted += 1
+            if p_drop > 0.0 and rng.random() < p_drop:
+                self.bytes_dropped_fault += 1
+                continue
+            out.append(byte)
+        return bytes(out)
 
     def _corrupt(self, frame: bytes) -> bytes:
         low, mid, high = frame

@@ -46,8 +46,17 @@ i.e. ``x`` in [0, 643) is the reserve before the start of the measuring range
 (SMR), [643, 64877] the measuring range, (64877, 65520] the reserve after its end
 (EMR); ``d`` spans [-0.01 MR, 1.01 MR] from the SMR. For the ILD1320-10,
 ``MR = 10 mm`` (default :data:`DEFAULT_MEASURING_RANGE_M`), so one digit is
-``10 mm * 1.02 / 65520 = 0.1557 um`` (:func:`quantum_m`). Sensor-side mastering
-(MASTERMV, 18-bit shifted values) is not supported: use the software tare.
+``10 mm * 1.02 / 65520 = 0.1557 um`` (:func:`quantum_m`).
+
+*Mastering* -- a sensor mastered with ``MASTERMV MASTER <MV>`` (a setting a
+previous user may have left) sends 18-bit values shifted by the master value
+[1420 manual ch. 7.5.2.1]: ``d_out [mm] = (x * 1.02 / 65520 - 0.51) * MR`` with
+``d_out = d - MP + MV`` (MP: the distance at the time of mastering, MV: the
+master value). Decoded with the formula above such values are off by
+``MV - MP + 0.5 MR`` (and may exceed 65520). The backend therefore never reads a
+mastered stream: on every connect it sends ``MASTERMV NONE`` and checks the
+read-back (:func:`mastered_displacement_to_code` exists for the emulator only);
+zeroing is the software tare.
 
 *Error values* (18 bit, sent instead of a distance) [1420 manual ch. 7.5.2.1;
 **not seen in a 1320 page**]:
@@ -70,7 +79,27 @@ Any other value above 65520 decodes to ``MeasurementError.UNKNOWN_CODE``.
 ``MEASRATE`` in kHz. [1320 manual ch. 6.4: 500 us cycle at 2 kHz, the maximum;
 the rate list itself is the 1420's (``0.25|0.5|1|2|4``) without 4 kHz:
 **unverified for the 1320**.] Timing [1320 manual ch. 6.4]: a value is output
-three cycles after its acquisition (1.5 ms at 2 kHz), one value per cycle.
+three cycles after its acquisition (1.5 ms at 2 kHz), one value per cycle. A
+``MEASRATE`` reply with any other number (0, 7, ...) is a bad reply
+(:class:`~dea_ros.hardware.laser.SensorError`), never a rate to compute with.
+
+*Known state on connect* [1320 manual A 3.5.3.2, A 3.6; 1420 manual A 3.4.6.2,
+A 3.5.1]: ``OUTPUT RS422`` (values on the serial line), ``OUTADD_RS422 NONE``
+(no additional values: exposure, counter, ... would interleave with the
+distances), ``OUTHOLD NONE`` (an error value is sent as an error, never replaced
+by the last valid value: a held value would look like a fresh, valid sample),
+``MASTERMV NONE`` (no mastering), ``MEASRATE`` as configured; each read back.
+The query replies are assumed to follow the general reply format ``<Command>
+<Parameter> ...`` (``OUTHOLD NONE``, ``MASTERMV NONE``, ``OUTADD_RS422 NONE``):
+**unverified** on a real ILD1320. :func:`check_laser_sensor` compares what the
+sensor reports with the configuration (:class:`LaserSensorReport`).
+
+*Plausibility* -- the binary stream has no checksum: a corrupted or random byte
+sequence with the right flag bits decodes to a "valid" distance. Every distance
+therefore passes :class:`PlausibilityFilter` (inside the measuring range, not
+the first frame after a framing error, within the distance the mass can travel
+since the previous accepted value, confirmed by consecutive samples when there
+is no trusted previous value).
 
 *ASCII commands* [1220 manual A 3.1, 1320 manual A 3.1-A 3.6, 1420 manual A 3.3]:
 a command is its name and zero or more parameters separated by blanks, ended by
@@ -79,9 +108,11 @@ parameters returns the current value. The reply format is ``<Command name>
 <Parameter1> [<Parameter2> ...]`` (it can be sent back as a command). "After
 processing a command always a return and a prompt (``->``) is returned"; an error
 message ``Exxx <text>`` (or a warning ``Wxxx <text>``, the command is executed)
-precedes the prompt. Commands used here: ``GETINFO`` (``Name:``, ``Serial:``,
-``Measuring range: 10.00mm``, ... lines), ``MEASRATE``, ``OUTPUT NONE|RS422|ANALOG``
-(1420 manual A 3.5.1). **Unverified:** the laser command name
+precedes the prompt. Commands used here: ``GETINFO`` (``Name: ILD1320-10``,
+``Serial:``, ``Measuring range: 10.00mm``, ... lines), ``MEASRATE``, ``OUTPUT
+NONE|RS422|ANALOG`` (1420 manual A 3.5.1), ``OUTADD_RS422 NONE|<values>`` (1320
+manual A 3.5.3.2), ``OUTHOLD NONE|0|<count>`` (1320 manual A 3.6 lists it; syntax
+of the family), ``MASTERMV NONE|MASTER <MV>`` (1420 manual A 3.4.6.2). **Unverified:** the laser command name
 ``LASERPOW FULL|OFF`` (1x20 family naming, not found in the searched pages), the
 number formatting of the ``MEASRATE`` reply (the parser accepts any number), the
 line terminator of replies (CR LF assumed, LF accepted) and whether the sensor
@@ -150,6 +181,26 @@ __all__ = [
     "parse_measrate_reply",
     "parse_laser_reply",
     "parse_output_reply",
+    "mastermv_command",
+    "outadd_rs422_command",
+    "outhold_command",
+    "parse_mastermv_reply",
+    "parse_outadd_rs422_reply",
+    "parse_outhold_reply",
+    "parse_measrate_value_hz",
+    "mastered_displacement_to_code",
+    # connected sensor vs configuration
+    "MODEL_PREFIX",
+    "KNOWN_STATE",
+    "LaserSensorSettings",
+    "LaserSensorExpectation",
+    "LaserSensorReport",
+    "check_laser_sensor",
+    # plausibility of samples
+    "DEFAULT_MAX_SPEED_M_PER_S",
+    "DEFAULT_JUMP_TOLERANCE_M",
+    "DEFAULT_CONFIRM_SAMPLES",
+    "PlausibilityFilter",
 ]
 
 # --------------------------------------------------------------------------- serial
@@ -315,6 +366,37 @@ def encode_displacement(
 ) -> bytes:
     """Frame bytes the sensor would send for a displacement (see :func:`displacement_to_code`)."""
     return encode_value(displacement_to_code(value, measuring_range_m))
+
+
+#: Offset of the mastered (18-bit) output code, fraction of MR [1420 manual ch. 7.5.2.1].
+_MASTERED_CODE_OFFSET = 0.51
+#: Largest mastered code the emulator sends (just below the error codes).
+_MASTERED_CODE_MAX = min(ERROR_CODES) - 1
+
+
+def mastered_displacement_to_code(
+    value: Union[float, MeasurementError],
+    master_position_m: float,
+    master_value_m: float,
+    measuring_range_m: float = DEFAULT_MEASURING_RANGE_M,
+) -> int:
+    """What a *mastered* sensor sends for a distance ``value`` (metres from the SMR).
+
+    ``d_out = value - master_position_m + master_value_m`` coded as
+    ``x = (d_out / MR + 0.51) * 65520 / 1.02`` (18 bit, see the module docstring).
+    Only the emulator uses it: the backend resets mastering instead of decoding it.
+    Values outside the sensor's range still give the range error codes.
+    """
+    if isinstance(value, MeasurementError) or math.isnan(float(value)):
+        return displacement_to_code(value, measuring_range_m)
+    range_m = _check_range_m(measuring_range_m)
+    if displacement_to_code(value, range_m) in ERROR_CODES:  # beyond the reserves
+        return displacement_to_code(value, range_m)
+    d_out = float(value) - float(master_position_m) + float(master_value_m)
+    scaled = (d_out / range_m + _MASTERED_CODE_OFFSET) / _CODE_SCALE
+    if scaled < -0.5:
+        return _ERROR_TO_CODE[MeasurementError.TARGET_TOO_CLOSE]
+    return min(max(int(round(scaled)), 0), _MASTERED_CODE_MAX)
 
 
 def apply_tare(
@@ -671,12 +753,91 @@ def parse_getinfo_reply(reply: CommandReply) -> SensorInfo:
     )
 
 
-def parse_measrate_reply(reply: CommandReply) -> float:
-    """``MEASRATE`` query reply (kHz) -> measuring rate in Hz."""
+def parse_measrate_value_hz(reply: CommandReply) -> float:
+    """The number in a ``MEASRATE`` query reply (kHz), in Hz, *not* validated.
+
+    Raises :class:`SensorError` when there is no finite number; use
+    :func:`parse_measrate_reply` for a rate to work with.
+    """
     params = _value_of(reply, "MEASRATE")
     if not params or not _NUMBER.match(params[0]):
         raise SensorError(f"cannot read a rate from the MEASRATE reply {list(reply.lines)!r}")
-    return float(params[0]) * 1000.0
+    value = float(params[0]) * 1000.0
+    if not math.isfinite(value):
+        raise SensorError(f"cannot read a rate from the MEASRATE reply {list(reply.lines)!r}")
+    return value
+
+
+def parse_measrate_reply(reply: CommandReply) -> float:
+    """``MEASRATE`` query reply (kHz) -> measuring rate in Hz, one of the ILD1320 rates.
+
+    A number that is not an ILD1320 rate (``MEASRATE 0``, ``MEASRATE 7``, ...)
+    is a bad reply: :class:`SensorError` naming the reply and the allowed rates.
+    """
+    value = parse_measrate_value_hz(reply)
+    try:
+        return validate_measuring_rate_hz(value)
+    except ValueError:
+        allowed = ", ".join(f"{r:g}" for r in ALLOWED_MEASURING_RATES_HZ)
+        raise SensorError(
+            f"the sensor reports a measuring rate of {value:g} Hz (reply {list(reply.lines)!r}), "
+            f"which is not an ILD1320 rate ({allowed} Hz)"
+        ) from None
+
+
+def mastermv_command(reset: bool = True) -> str:
+    """``MASTERMV NONE`` (end any mastering) or the query ``MASTERMV`` (``reset=False``)."""
+    return "MASTERMV NONE" if reset else "MASTERMV"
+
+
+_OUTADD_VALUES = ("SHUTTER", "COUNTER", "TIMESTAMP", "INTENSITY", "STATE", "DIST_RAW")
+
+
+def outadd_rs422_command(values: Optional[Sequence[str]] = ()) -> str:
+    """``OUTADD_RS422`` set (``()`` -> ``NONE``, or the additional values) or query (``None``)."""
+    if values is None:
+        return "OUTADD_RS422"
+    names = [str(v).upper() for v in values]
+    for name in names:
+        if name not in _OUTADD_VALUES:
+            raise ValueError(f"additional output must be one of {', '.join(_OUTADD_VALUES)}, got {name!r}")
+    return "OUTADD_RS422 " + (" ".join(names) if names else "NONE")
+
+
+def outhold_command(mode: Optional[str] = "NONE") -> str:
+    """``OUTHOLD NONE`` (errors are output as errors), ``0`` (hold forever), ``<n>`` cycles; ``None`` queries."""
+    if mode is None:
+        return "OUTHOLD"
+    text = str(mode).strip().upper()
+    if text != "NONE" and not (text.isdigit() and int(text) <= 2_147_483_645):
+        raise ValueError(f"OUTHOLD mode must be NONE, 0 or a number of cycles, got {mode!r}")
+    return f"OUTHOLD {text}"
+
+
+def parse_mastermv_reply(reply: CommandReply) -> str:
+    """``MASTERMV`` query reply -> ``"NONE"`` or the mastering as sent (``"MASTER 3.000000"``)."""
+    params = _value_of(reply, "MASTERMV")
+    if not params:
+        raise SensorError(f"cannot read the mastering from the MASTERMV reply {list(reply.lines)!r}")
+    return " ".join(p.upper() for p in params)
+
+
+def parse_outadd_rs422_reply(reply: CommandReply) -> tuple[str, ...]:
+    """``OUTADD_RS422`` query reply -> the additional values (``()`` for ``NONE``)."""
+    params = [p.upper() for p in _value_of(reply, "OUTADD_RS422")]
+    if not params:
+        raise SensorError(f"cannot read the additional outputs from {list(reply.lines)!r}")
+    if params == ["NONE"]:
+        return ()
+    return tuple(params)
+
+
+def parse_outhold_reply(reply: CommandReply) -> str:
+    """``OUTHOLD`` query reply -> ``"NONE"``, ``"0"`` or the number of cycles."""
+    params = _value_of(reply, "OUTHOLD")
+    if not params:
+        raise SensorError(f"cannot read the hold mode from the OUTHOLD reply {list(reply.lines)!r}")
+    return params[0].upper()
 
 
 def parse_laser_reply(reply: CommandReply) -> bool:
@@ -693,3 +854,281 @@ def parse_output_reply(reply: CommandReply) -> str:
     if not params:
         raise SensorError(f"cannot read the output channel from {list(reply.lines)!r}")
     return params[0].upper()
+
+
+# --------------------------------------------------------------------------- connected sensor
+#: Model name prefix of the sensors this backend drives (``GETINFO`` ``Name:`` line).
+MODEL_PREFIX = "ILD1320"
+
+#: The state the backend puts the sensor into on every connect (query reply values).
+KNOWN_STATE: dict[str, object] = {
+    "output": "RS422",
+    "additional_outputs": (),
+    "output_hold": "NONE",
+    "mastering": "NONE",
+}
+
+_RANGE_ABS_TOL_M = 5e-6  # GETINFO prints the range in mm with 2 decimals
+
+
+@dataclass(frozen=True)
+class LaserSensorSettings:
+    """What a connected ILD1320 reports about itself (``None``: not read / unreadable).
+
+    ``measuring_rate_hz`` is the number the sensor sent, not validated (it may be
+    0 or 7000 on a misbehaving sensor). ``unreadable`` has one sentence per reply
+    that could not be read.
+    """
+
+    model: str = ""
+    serial_number: str = ""
+    measuring_range_m: Optional[float] = None
+    measuring_rate_hz: Optional[float] = None
+    output: Optional[str] = None
+    additional_outputs: Optional[tuple[str, ...]] = None
+    output_hold: Optional[str] = None
+    mastering: Optional[str] = None
+    unreadable: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LaserSensorExpectation:
+    """What the configuration expects of the sensor.
+
+    ``measuring_range_m``: the head's measuring range (laser_sensor_node parameter
+    ``measuring_range_m``); ``None`` accepts any range the sensor reports.
+    ``measuring_rate_hz``: the rate the node sets on connect (``None``: keep).
+    """
+
+    measuring_range_m: Optional[float] = DEFAULT_MEASURING_RANGE_M
+    measuring_rate_hz: Optional[float] = None
+
+
+@dataclass(frozen=True)
+class LaserSensorReport:
+    """The connected sensor, the configuration's expectation and their differences.
+
+    ``mismatches``: differences that make the sensor unusable with this
+    configuration (another model or measuring range, a rate that is not an
+    ILD1320 rate, an unreadable identity): the node refuses to stream.
+    ``to_reset``: settings that differ from :data:`KNOWN_STATE` or the configured
+    rate; the backend sets them on connect (and reads them back).
+    """
+
+    settings: LaserSensorSettings
+    expected: LaserSensorExpectation
+    mismatches: tuple[str, ...] = ()
+    to_reset: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return not self.mismatches
+
+    def lines(self) -> list[str]:
+        """Human-readable report, one fact per line."""
+        s, e = self.settings, self.expected
+
+        def mm(value: Optional[float]) -> str:
+            return "unknown" if value is None else f"{value * 1e3:g} mm"
+
+        def hz(value: Optional[float]) -> str:
+            return "unknown" if value is None else f"{value:g} Hz"
+
+        extra = "unknown" if s.additional_outputs is None else (" ".join(s.additional_outputs) or "NONE")
+        out = [
+            f"laser sensor: {s.model or 'unknown model'}, serial {s.serial_number or 'unknown'}",
+            f"  measuring range: {mm(s.measuring_range_m)} (configuration: "
+            f"{'any' if e.measuring_range_m is None else mm(e.measuring_range_m)})",
+            f"  measuring rate: {hz(s.measuring_rate_hz)} (configuration: "
+            f"{'keep' if e.measuring_rate_hz is None else hz(e.measuring_rate_hz)})",
+            f"  output {s.output or 'unknown'}, additional outputs {extra}, "
+            f"hold {s.output_hold or 'unknown'}, mastering {s.mastering or 'unknown'}",
+        ]
+        out += [f"  unreadable: {text}" for text in s.unreadable]
+        out += [f"  reset on connect: {text}" for text in self.to_reset]
+        out += [f"  MISMATCH: {text}" for text in self.mismatches]
+        return out
+
+
+def _range_from_model_m(model: str) -> Optional[float]:
+    match = re.match(r"^ILD\s*1320\s*-\s*(\d+(?:\.\d+)?)\b", model.strip(), re.IGNORECASE)
+    return None if match is None else float(match.group(1)) * 1e-3
+
+
+def check_laser_sensor(settings: LaserSensorSettings, expected: LaserSensorExpectation) -> LaserSensorReport:
+    """Compare what the sensor reports with the configuration (pure, no I/O).
+
+    Returns a :class:`LaserSensorReport` whose ``mismatches`` name the setting,
+    the sensor's value, the configuration's value and the fix.
+    """
+    mismatches: list[str] = []
+    to_reset: list[str] = []
+    model = settings.model.strip()
+    if not model:
+        mismatches.append("model: GETINFO reported no 'Name:'; cannot identify the sensor")
+    elif not model.replace(" ", "").upper().startswith(MODEL_PREFIX):
+        mismatches.append(f"model: the sensor is a {model!r}; this backend drives an {MODEL_PREFIX} "
+                          f"(other models use other rates and codes)")
+    reported_range = settings.measuring_range_m
+    if reported_range is None:
+        mismatches.append("measuring range: GETINFO reported no 'Measuring range: <n>mm'; distances "
+                          "cannot be converted without it")
+    elif not (math.isfinite(reported_range) and reported_range > 0.0):
+        mismatches.append(f"measuring range: GETINFO reported {reported_range!r} m, not a positive range")
+    else:
+        model_range = _range_from_model_m(model)
+        if model_range is not None and abs(model_range - reported_range) > _RANGE_ABS_TOL_M:
+            mismatches.append(f"measuring range: GETINFO is inconsistent, name {model!r} but measuring range "
+                              f"{reported_range * 1e3:g} mm")
+        if expected.measuring_range_m is not None and abs(reported_range - expected.measuring_range_m) > _RANGE_ABS_TOL_M:
+            mismatches.append(f"measuring range: the sensor reports {reported_range * 1e3:g} mm but parameter "
+                              f"measuring_range_m is {expected.measuring_range_m * 1e3:g} mm; set "
+                              f"measuring_range_m to the head's range or connect the right head")
+    if expected.measuring_rate_hz is not None:
+        try:
+            validate_measuring_rate_hz(expected.measuring_rate_hz)
+        except ValueError as exc:
+            mismatches.append(f"measuring rate: parameter measuring_rate_hz: {exc}")
+    rate = settings.measuring_rate_hz
+    if rate is not None:
+        try:
+            rate = validate_measuring_rate_hz(rate)
+        except ValueError:
+            mismatches.append(f"measuring rate: the sensor reports {rate:g} Hz, which is not an ILD1320 rate "
+                              f"({', '.join(f'{r:g}' for r in ALLOWED_MEASURING_RATES_HZ)} Hz)")
+        else:
+            if expected.measuring_rate_hz is not None and not math.isclose(rate, expected.measuring_rate_hz):
+                to_reset.append(f"measuring rate {rate:g} Hz -> {expected.measuring_rate_hz:g} Hz")
+    if settings.output is not None and settings.output != KNOWN_STATE["output"]:
+        to_reset.append(f"output {settings.output} -> {KNOWN_STATE['output']}")
+    if settings.additional_outputs:
+        to_reset.append(f"additional outputs {' '.join(settings.additional_outputs)} -> NONE")
+    if settings.output_hold is not None and settings.output_hold != KNOWN_STATE["output_hold"]:
+        to_reset.append(f"hold mode OUTHOLD {settings.output_hold} -> NONE (errors reported as errors)")
+    if settings.mastering is not None and settings.mastering != KNOWN_STATE["mastering"]:
+        to_reset.append(f"mastering MASTERMV {settings.mastering} (shifts every distance) -> NONE")
+    return LaserSensorReport(settings, expected, tuple(mismatches), tuple(to_reset))
+
+
+# --------------------------------------------------------------------------- plausibility
+#: Default speed limit of the measured target (m/s). The mass on the membrane is
+#: driven by the membrane stress and gravity only: forward integration of the
+#: model (eq. 17) for steps between 0 V and the breakdown voltage of the A1, A2
+#: and LP1 presets gives at most 0.07 m/s (accelerations below 9 m/s^2); a mass
+#: falling freely through the whole 10 mm range (a torn membrane) reaches
+#: sqrt(2 g 10 mm) = 0.44 m/s. 0.5 m/s covers both.
+DEFAULT_MAX_SPEED_M_PER_S = 0.5
+#: Default allowance for sensor noise and quantisation on top of the speed limit (m).
+DEFAULT_JUMP_TOLERANCE_M = 20e-6
+#: Consecutive consistent samples needed to accept a value without a trusted previous one.
+DEFAULT_CONFIRM_SAMPLES = 3
+
+
+class PlausibilityFilter:
+    """Per-sample plausibility checks of decoded distances (the stream has no checksum).
+
+    :meth:`check` returns the value when it is accepted, otherwise the reason as
+    a :class:`MeasurementError` (sensor error codes pass through unchanged):
+
+    1. ``OUTSIDE_MEASURING_RANGE``: the distance lies in the reserves before the
+       SMR or after the EMR (outside ``[0, MR]``).
+    2. ``AFTER_FRAMING_ERROR``: bytes were dropped just before the frame; random
+       bytes carry valid flag bits once every ~64 positions, so a frame right
+       after corrupt bytes is not trusted (the decoder resynchronises on the
+       flag bits, the filter on the next clean frame). Also restarts the
+       confirmation chain.
+    3. ``IMPLAUSIBLE_JUMP``: farther from the last accepted sample than the mass
+       can travel in the time between them,
+       ``|d - d_ref| > max_speed_m_per_s * (t - t_ref) + jump_tolerance_m``.
+    4. ``UNCONFIRMED``: without a trusted reference (start of the stream, after
+       :meth:`reset`) a value is accepted only as the ``confirm_samples``-th of
+       consecutive samples each consistent with its predecessor; the same chain
+       re-anchors the reference after a real jump (a target moved by hand):
+       the samples of the chain before the last are discarded.
+
+    Counters: ``accepted``, ``discarded`` (per :class:`MeasurementError`, sensor
+    error codes included) and ``reanchors``. Never raises on values.
+    """
+
+    def __init__(
+        self,
+        measuring_range_m: float = DEFAULT_MEASURING_RANGE_M,
+        *,
+        max_speed_m_per_s: float = DEFAULT_MAX_SPEED_M_PER_S,
+        jump_tolerance_m: float = DEFAULT_JUMP_TOLERANCE_M,
+        confirm_samples: int = DEFAULT_CONFIRM_SAMPLES,
+    ) -> None:
+        self.measuring_range_m = _check_range_m(measuring_range_m)
+        self.max_speed_m_per_s = float(max_speed_m_per_s)
+        if not (math.isfinite(self.max_speed_m_per_s) and self.max_speed_m_per_s > 0.0):
+            raise ValueError(f"max_speed_m_per_s must be a positive speed, got {max_speed_m_per_s!r}")
+        self.jump_tolerance_m = float(jump_tolerance_m)
+        if not (math.isfinite(self.jump_tolerance_m) and self.jump_tolerance_m >= 0.0):
+            raise ValueError(f"jump_tolerance_m must be >= 0 m, got {jump_tolerance_m!r}")
+        if isinstance(confirm_samples, bool) or int(confirm_samples) != confirm_samples or not 1 <= confirm_samples <= 100:
+            raise ValueError(f"confirm_samples must be an integer in [1, 100], got {confirm_samples!r}")
+        self.confirm_samples = int(confirm_samples)
+        self.accepted = 0
+        self.discarded: dict[MeasurementError, int] = {}
+        self.reanchors = 0
+        self._ref: Optional[tuple[float, float]] = None
+        self._chain: list[tuple[float, float]] = []
+
+    def reset(self) -> None:
+        """Forget the reference and the chain (a new connection); counters are kept."""
+        self._ref = None
+        self._chain = []
+
+    @property
+    def reference(self) -> Optional[tuple[float, float]]:
+        """(time s, distance m) of the last accepted sample, or ``None``."""
+        return self._ref
+
+    def allowed_jump_m(self, dt_s: float) -> float:
+        """Largest plausible change of the distance in ``dt_s`` seconds."""
+        return self.max_speed_m_per_s * max(float(dt_s), 0.0) + self.jump_tolerance_m
+
+    def _consistent(self, a: tuple[float, float], t_s: float, d_m: float) -> bool:
+        return abs(d_m - a[1]) <= self.allowed_jump_m(t_s - a[0])
+
+    def _reject(self, reason: MeasurementError) -> MeasurementError:
+        self.discarded[reason] = self.discarded.get(reason, 0) + 1
+        return reason
+
+    def check(
+        self, t_s: float, value: Union[float, MeasurementError], framing_error_before: bool = False
+    ) -> Union[float, MeasurementError]:
+        """The value if plausible, else the reason it is discarded (see the class docstring)."""
+        if isinstance(value, MeasurementError):
+            return self._reject(value)
+        try:
+            d = float(value)
+            t = float(t_s)
+        except (TypeError, ValueError):
+            return self._reject(MeasurementError.UNKNOWN_CODE)
+        if not (math.isfinite(d) and math.isfinite(t)):
+            return self._reject(MeasurementError.UNKNOWN_CODE)
+        if framing_error_before:
+            self._chain = []
+            return self._reject(MeasurementError.AFTER_FRAMING_ERROR)
+        if not 0.0 <= d <= self.measuring_range_m:
+            return self._reject(MeasurementError.OUTSIDE_MEASURING_RANGE)
+        if self._ref is not None and self._consistent(self._ref, t, d):
+            self._chain = []
+            self._ref = (t, d)
+            self.accepted += 1
+            return d
+        if self._chain and self._consistent(self._chain[-1], t, d):
+            self._chain.append((t, d))
+        else:
+            self._chain = [(t, d)]
+        if len(self._chain) >= self.confirm_samples:
+            if self._ref is not None:
+                self.reanchors += 1
+            self._chain = []
+            self._ref = (t, d)
+            self.accepted += 1
+            return d
+        return self._reject(
+            MeasurementError.UNCONFIRMED if self._ref is None else MeasurementError.IMPLAUSIBLE_JUMP
+        )

@@ -48,6 +48,31 @@ chunks define the clock -- tracking crystal drift, independent of how often
 ``read_batch`` is called, with an error of about the minimum transport latency
 (sub-millisecond on a pty, the USB latency timer on a real adapter).
 
+Connecting: a known state, checked against the configuration
+-------------------------------------------------------------
+:meth:`ILD1320Sensor.open` first reads what the sensor reports (``GETINFO``,
+``MEASRATE``, ``OUTPUT``, ``OUTADD_RS422``, ``OUTHOLD``, ``MASTERMV``) and compares
+it with the configuration (:func:`~dea_ros.hardware.ild1320_protocol.check_laser_sensor`):
+another model, another measuring range than ``measuring_range_m`` or a rate that
+is not an ILD1320 rate raise :class:`~dea_ros.hardware.laser.SensorConfigurationError`
+(the report is :attr:`ILD1320Sensor.connect_report`). Otherwise it puts the
+sensor into the known state (``OUTPUT RS422``, ``OUTADD_RS422 NONE``, ``OUTHOLD
+NONE``, ``MASTERMV NONE``, ``MEASRATE``) and reads every setting back; samples
+received while configuring and the :data:`OUTPUT_DELAY_CYCLES` + 1 samples after
+it (acquired under the old settings) are dropped. :func:`describe_ild1320` reads
+and checks without changing anything (for a rig check before any voltage).
+
+Plausibility
+------------
+Every decoded sample passes a
+:class:`~dea_ros.hardware.ild1320_protocol.PlausibilityFilter`; a discarded
+sample is returned by :meth:`~ILD1320Sensor.read_batch` as a reading whose
+value is the reason (``MeasurementError.IMPLAUSIBLE_JUMP``, ...), so consumers
+count discards per reason; byte-level counters are in
+:meth:`~ILD1320Sensor.diagnostic_counters`. Note: ASCII replies are non-frame
+bytes too, so the frame after a reply to a command sent while streaming is
+discarded as ``AFTER_FRAMING_ERROR``.
+
 Disconnects
 -----------
 A serial exception (port vanished, EIO) closes the port and raises
@@ -69,6 +94,10 @@ import serial
 
 from dea_ros.hardware.ild1320_protocol import (
     BYTES_PER_VALUE,
+    DEFAULT_CONFIRM_SAMPLES,
+    DEFAULT_JUMP_TOLERANCE_M,
+    DEFAULT_MAX_SPEED_M_PER_S,
+    KNOWN_STATE,
     DEFAULT_BAUDRATE,
     DEFAULT_MEASURING_RANGE_M,
     OUTPUT_DELAY_CYCLES,
@@ -77,16 +106,29 @@ from dea_ros.hardware.ild1320_protocol import (
     SERIAL_STOPBITS,
     CommandReply,
     FrameDecoder,
+    LaserSensorExpectation,
+    LaserSensorReport,
+    LaserSensorSettings,
+    PlausibilityFilter,
     SensorInfo,
+    check_laser_sensor,
     command_bytes,
     find_reply_end,
     getinfo_command,
     laser_command,
+    mastermv_command,
     measrate_command,
+    outadd_rs422_command,
+    outhold_command,
     output_command,
     parse_getinfo_reply,
     parse_laser_reply,
+    parse_mastermv_reply,
     parse_measrate_reply,
+    parse_measrate_value_hz,
+    parse_outadd_rs422_reply,
+    parse_outhold_reply,
+    parse_output_reply,
     parse_reply,
     validate_measuring_rate_hz,
 )
@@ -94,12 +136,13 @@ from dea_ros.hardware.laser import (
     DisplacementReading,
     DisplacementSensor,
     MeasurementError,
+    SensorConfigurationError,
     SensorDisconnected,
     SensorError,
     validated_tare_offset_m,
 )
 
-__all__ = ["SampleClock", "ILD1320Sensor"]
+__all__ = ["SampleClock", "ILD1320Sensor", "describe_ild1320"]
 
 _READ_CHUNK_BYTES = 65536
 _BITS_PER_BYTE_8N1 = 10
@@ -239,12 +282,17 @@ class ILD1320Sensor(DisplacementSensor):
     timeout_s:
         Reply timeout of each ASCII command and write timeout, seconds.
     measuring_range_m:
-        Measuring range for the conversion; ``None`` takes it from ``GETINFO``
-        (falls back to 10 mm if the reply has none).
+        Measuring range of the head the configuration expects (10 mm for the
+        ILD1320-10): :meth:`open` refuses a sensor whose ``GETINFO`` reports
+        another one (:class:`SensorConfigurationError`). ``None`` accepts the
+        reported range (it must be present and consistent with the model name).
     measuring_rate_hz:
-        Rate to set on every :meth:`open` (``None``: keep the sensor's setting).
+        Rate to set on every :meth:`open` (``None``: keep the sensor's setting,
+        which must be an ILD1320 rate); read back and checked.
     enable_rs422_output:
         Send ``OUTPUT RS422`` on :meth:`open` so that values are streamed.
+    max_speed_m_per_s, jump_tolerance_m, confirm_samples:
+        Plausibility limits of :class:`PlausibilityFilter`.
     no_data_timeout_periods, min_no_data_timeout_s:
         Silence longer than ``max(periods / rate, min)`` means disconnected.
     serial_factory:
@@ -264,6 +312,9 @@ class ILD1320Sensor(DisplacementSensor):
         min_no_data_timeout_s: float = 0.3,
         max_queued_samples: int = 100_000,
         serial_factory: Optional[Callable[..., Any]] = None,
+        max_speed_m_per_s: float = DEFAULT_MAX_SPEED_M_PER_S,
+        jump_tolerance_m: float = DEFAULT_JUMP_TOLERANCE_M,
+        confirm_samples: int = DEFAULT_CONFIRM_SAMPLES,
     ) -> None:
         self._port = str(port)
         self._baudrate = int(baudrate)
@@ -272,8 +323,10 @@ class ILD1320Sensor(DisplacementSensor):
         self._timeout_s = float(timeout_s)
         if not (math.isfinite(self._timeout_s) and self._timeout_s > 0.0):
             raise ValueError(f"timeout_s must be positive, got {timeout_s!r}")
-        if measuring_range_m is not None and not (float(measuring_range_m) > 0.0):
-            raise ValueError(f"measuring_range_m must be positive, got {measuring_range_m!r}")
+        if measuring_range_m is not None and not (
+            math.isfinite(float(measuring_range_m)) and float(measuring_range_m) > 0.0
+        ):
+            raise ValueError(f"measuring_range_m must be a positive number of metres, got {measuring_range_m!r}")
         self._range_override_m = None if measuring_range_m is None else float(measuring_range_m)
         self._requested_rate_hz = (
             None if measuring_rate_hz is None else validate_measuring_rate_hz(measuring_rate_hz)
@@ -295,6 +348,15 @@ class ILD1320Sensor(DisplacementSensor):
             self._range_override_m or DEFAULT_MEASURING_RANGE_M, keep_non_frame_bytes=True
         )
         self._clock = SampleClock(self._rate_hz, self._latency_s(self._rate_hz))
+        self._filter = PlausibilityFilter(
+            self._decoder.measuring_range_m,
+            max_speed_m_per_s=max_speed_m_per_s,
+            jump_tolerance_m=jump_tolerance_m,
+            confirm_samples=confirm_samples,
+        )
+        self._configuring = False
+        self._settle_remaining = 0
+        self._connect_report: Optional[LaserSensorReport] = None
         self._queue: collections.deque[tuple[float, Union[float, MeasurementError]]] = collections.deque()
         self._max_queued = int(max_queued_samples)
         if self._max_queued < 1:
@@ -304,6 +366,7 @@ class ILD1320Sensor(DisplacementSensor):
         self._tare_m = 0.0
         self._last_frame_time = -math.inf
         self.samples_dropped_queue_full = 0
+        self.samples_ignored_while_configuring = 0
 
     # ------------------------------------------------------------------ properties
     @property
@@ -319,6 +382,28 @@ class ILD1320Sensor(DisplacementSensor):
     def sample_clock(self) -> SampleClock:
         return self._clock
 
+    @property
+    def plausibility_filter(self) -> PlausibilityFilter:
+        return self._filter
+
+    @property
+    def connect_report(self) -> Optional[LaserSensorReport]:
+        """What the sensor reported at the last :meth:`open`, before it was reset (``None``: not read)."""
+        return self._connect_report
+
+    def diagnostic_counters(self) -> dict[str, int]:
+        """Cumulative byte/frame counters (discards per reason come as error readings)."""
+        d = self._decoder
+        return {
+            "frames_decoded": d.frames_decoded,
+            "bytes_discarded": d.bytes_discarded,
+            "partial_frames_dropped": d.partial_frames_dropped,
+            "additional_values_skipped": d.additional_values_skipped,
+            "samples_lost_estimate": self._clock.periods_skipped,
+            "samples_dropped_queue_full": self.samples_dropped_queue_full,
+            "samples_ignored_while_configuring": self.samples_ignored_while_configuring,
+            "plausibility_reanchors": self._filter.reanchors,
+        }
     @property
     def measuring_range_m(self) -> float:
         return self._decoder.measuring_range_m
@@ -336,12 +421,10 @@ class ILD1320Sensor(DisplacementSensor):
         return OUTPUT_DELAY_CYCLES / rate_hz + BYTES_PER_VALUE * _BITS_PER_BYTE_8N1 / self._baudrate
 
     # ------------------------------------------------------------------ lifecycle
-    def open(self) -> None:
-        """Open the port, read ``GETINFO``, enable RS422 output, set/read the rate.
+    def _expectation(self) -> LaserSensorExpectation:
+        return LaserSensorExpectation(self._range_override_m, self._requested_rate_hz)
 
-        Raises :class:`SensorDisconnected` if the port cannot be opened or the
-        sensor does not answer, :class:`SensorError` for refused commands.
-        """
+    def _open_port(self) -> None:
         if self._serial is not None:
             raise SensorError(f"ILD1320 on {self._port} is already open")
         try:
@@ -363,23 +446,107 @@ class ILD1320Sensor(DisplacementSensor):
         self._queue.clear()
         self._clock.reset(self._rate_hz, self._latency_s(self._rate_hz))
         self._last_frame_time = time.monotonic()
+
+    def open(self) -> None:
+        """Open the port, check the sensor against the configuration, set the known state.
+
+        Raises :class:`SensorDisconnected` if the port cannot be opened or the
+        sensor does not answer, :class:`SensorConfigurationError` when the sensor
+        differs from the configuration (see :attr:`connect_report`),
+        :class:`SensorError` for refused commands, bad replies or settings that do
+        not read back as set. The port is closed again on any failure.
+        """
+        self._open_port()
+        self._configuring = True
         try:
-            port.reset_input_buffer()
-            info = self.info()
-            range_m = self._range_override_m or info.measuring_range_m or DEFAULT_MEASURING_RANGE_M
-            self._decoder.measuring_range_m = range_m
-            if self._enable_output:
-                self._command(output_command("RS422"))
-            if self._requested_rate_hz is not None:
-                self._apply_rate(self._requested_rate_hz)
-            else:
-                self.measuring_rate()
+            self._serial.reset_input_buffer()
+            settings = self.read_settings()
+            report = check_laser_sensor(settings, self._expectation())
+            self._connect_report = report
+            if not report.ok:
+                raise SensorConfigurationError(
+                    f"ILD1320 on {self._port} does not match the configuration: " + "; ".join(report.mismatches),
+                    report.mismatches,
+                )
+            assert settings.measuring_range_m is not None  # checked above
+            self._decoder.measuring_range_m = settings.measuring_range_m
+            self._filter.measuring_range_m = settings.measuring_range_m
+            self._apply_known_state()
         except (serial.SerialException, OSError) as exc:
             self._close_port()
             raise SensorDisconnected(f"I/O error while configuring ILD1320 on {self._port}: {exc}") from exc
         except BaseException:
             self._close_port()
             raise
+        finally:
+            self._configuring = False
+        self._queue.clear()
+        self._filter.reset()
+        self._settle_remaining = OUTPUT_DELAY_CYCLES + 1
+
+    def _query(self, command: str, parse: Callable[[CommandReply], Any], unreadable: list[str]) -> Any:
+        """A query whose failure (refused, unparsable) is recorded, not raised; silence still raises."""
+        try:
+            return parse(self._command(command))
+        except SensorDisconnected:
+            raise
+        except SensorError as exc:
+            unreadable.append(f"{command}: {exc}")
+            return None
+
+    def read_settings(self) -> LaserSensorSettings:
+        """Query identity and settings without changing anything (port must be open).
+
+        ``GETINFO`` must answer (else :class:`SensorError`); other queries that
+        fail are listed in ``unreadable``.
+        """
+        info = self.info()
+        unreadable: list[str] = []
+        return LaserSensorSettings(
+            model=info.name,
+            serial_number=info.serial,
+            measuring_range_m=info.measuring_range_m,
+            measuring_rate_hz=self._query(measrate_command(), parse_measrate_value_hz, unreadable),
+            output=self._query(output_command(None), parse_output_reply, unreadable),
+            additional_outputs=self._query(outadd_rs422_command(None), parse_outadd_rs422_reply, unreadable),
+            output_hold=self._query(outhold_command(None), parse_outhold_reply, unreadable),
+            mastering=self._query(mastermv_command(reset=False), parse_mastermv_reply, unreadable),
+            unreadable=tuple(unreadable),
+        )
+
+    def describe(self) -> LaserSensorReport:
+        """Read the sensor's current settings and compare them with the configuration."""
+        self._require_port()
+        return check_laser_sensor(self.read_settings(), self._expectation())
+
+    def _apply_known_state(self) -> None:
+        if self._enable_output:
+            self._command(output_command("RS422"))
+        self._command(outadd_rs422_command(()))
+        self._command(outhold_command("NONE"))
+        self._command(mastermv_command(reset=True))
+        if self._requested_rate_hz is not None:
+            self._command(measrate_command(self._requested_rate_hz))
+        # read everything back: a sensor that acknowledges and keeps a setting is refused
+        problems = []
+        rate = self.measuring_rate()  # validated: an unsupported rate raises
+        if self._requested_rate_hz is not None and not math.isclose(rate, self._requested_rate_hz):
+            problems.append(f"measuring rate {rate:g} Hz after MEASRATE {self._requested_rate_hz / 1000.0:g}")
+        checks = [
+            (outadd_rs422_command(None), parse_outadd_rs422_reply, KNOWN_STATE["additional_outputs"]),
+            (outhold_command(None), parse_outhold_reply, KNOWN_STATE["output_hold"]),
+            (mastermv_command(reset=False), parse_mastermv_reply, KNOWN_STATE["mastering"]),
+        ]
+        if self._enable_output:
+            checks.insert(0, (output_command(None), parse_output_reply, KNOWN_STATE["output"]))
+        for command, parse, wanted in checks:
+            got = parse(self._command(command))
+            if got != wanted:
+                shown = " ".join(got) if isinstance(got, tuple) else got
+                problems.append(f"{command} reads back {shown or 'NONE'!r} after setting it to "
+                                f"{(' '.join(wanted) if isinstance(wanted, tuple) else wanted) or 'NONE'!r}")
+        if problems:
+            raise SensorError(f"ILD1320 on {self._port} did not take the known state: " + "; ".join(problems))
 
     def close(self) -> None:
         self._close_port()
@@ -423,7 +590,9 @@ class ILD1320Sensor(DisplacementSensor):
         """Close and re-open until frames flow again, with exponential backoff.
 
         Keeps the tare and the requested measuring rate. Raises
-        :class:`SensorDisconnected` if not connected within ``timeout_s``.
+        :class:`SensorDisconnected` if not connected within ``timeout_s``, and
+        :class:`SensorConfigurationError` at once when the sensor now connected
+        differs from the configuration (retrying cannot help).
         """
         deadline = time.monotonic() + float(timeout_s)
         backoff = float(initial_backoff_s)
@@ -439,6 +608,9 @@ class ILD1320Sensor(DisplacementSensor):
                 if self._wait_for_frames(min(max(deadline - time.monotonic(), 0.0), self.no_data_timeout_s)):
                     return
                 raise SensorDisconnected(f"ILD1320 on {self._port} opened but sends no data")
+            except SensorConfigurationError:
+                self._close_port()
+                raise
             except SensorError as exc:
                 last_error = exc
                 self._close_port()
@@ -490,16 +662,25 @@ class ILD1320Sensor(DisplacementSensor):
             loss_before=[sample.discarded_before > 0 for sample in samples],
             loss_after=self._decoder.discarded_since_last_frame > 0,
         )
+        self._last_frame_time = arrival_time_s
+        queued = 0
         for t_s, sample in zip(times, samples):
+            if self._configuring or self._settle_remaining > 0:
+                # acquired before / while the known state was set (maybe mastered)
+                if not self._configuring:
+                    self._settle_remaining -= 1
+                self.samples_ignored_while_configuring += 1
+                continue
+            value = self._filter.check(t_s, sample.value, sample.discarded_before > 0)
             if len(self._queue) >= self._max_queued:
                 self._queue.popleft()
                 self.samples_dropped_queue_full += 1
-            self._queue.append((t_s, sample.value))
-            if sample.is_valid:
-                self._recent_valid_m.append(sample.value)
+            self._queue.append((t_s, value))
+            queued += 1
+            if not isinstance(value, MeasurementError):
+                self._recent_valid_m.append(value)
                 self._valid_count += 1
-        self._last_frame_time = arrival_time_s
-        return len(samples)
+        return queued
 
     def _wait_for_frames(self, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -573,7 +754,7 @@ class ILD1320Sensor(DisplacementSensor):
         return self._info
 
     def measuring_rate(self) -> float:
-        """Query the measuring rate (Hz) from the sensor."""
+        """Query the measuring rate (Hz) from the sensor; a non-ILD1320 rate is a :class:`SensorError`."""
         rate_hz = parse_measrate_reply(self._command(measrate_command()))
         if not math.isclose(rate_hz, self._rate_hz):
             self._rate_hz = rate_hz
@@ -629,3 +810,36 @@ class ILD1320Sensor(DisplacementSensor):
 
     def set_tare(self, offset_m: float) -> None:
         self._tare_m = validated_tare_offset_m(offset_m)
+
+
+def describe_ild1320(
+    port: str,
+    expected: LaserSensorExpectation = LaserSensorExpectation(),
+    *,
+    baudrate: int = DEFAULT_BAUDRATE,
+    timeout_s: float = 0.5,
+    serial_factory: Optional[Callable[..., Any]] = None,
+) -> LaserSensorReport:
+    """What is connected on ``port`` and how it differs from ``expected`` -- changes nothing.
+
+    Opens the port, reads ``GETINFO`` and the settings (rate, output, additional
+    outputs, hold mode, mastering), closes it and returns
+    :func:`~dea_ros.hardware.ild1320_protocol.check_laser_sensor`'s report
+    (``report.ok``, ``report.mismatches``, ``report.to_reset``, ``report.lines()``).
+    Raises :class:`SensorDisconnected` when the port cannot be opened or the
+    sensor does not answer, :class:`SensorError` for an unreadable ``GETINFO``.
+    """
+    sensor = ILD1320Sensor(
+        port, baudrate, timeout_s, measuring_range_m=None, measuring_rate_hz=None,
+        enable_rs422_output=False, serial_factory=serial_factory,
+    )
+    sensor._open_port()
+    sensor._configuring = True
+    try:
+        sensor._serial.reset_input_buffer()
+        settings = sensor.read_settings()
+    except (serial.SerialException, OSError) as exc:
+        raise SensorDisconnected(f"I/O error while reading ILD1320 on {port}: {exc}") from exc
+    finally:
+        sensor.close()
+    return check_laser_sensor(settings, expected)

@@ -15,7 +15,9 @@ Units: displacements in metres, times in seconds, rates in hertz.
 * :class:`SensorError` / :class:`SensorDisconnected` -- exceptions raised by the
   backends; ``SensorDisconnected`` means "no usable data stream" (serial port
   error, port vanished, or silence for longer than the backend's timeout) and is
-  recoverable with :meth:`DisplacementSensor.reconnect`.
+  recoverable with :meth:`DisplacementSensor.reconnect`;
+  :class:`SensorConfigurationError` means the connected sensor is not the one the
+  configuration describes (model, measuring range, rate): retrying does not help.
 
 This module imports nothing but the standard library.
 """
@@ -31,6 +33,7 @@ __all__ = [
     "DisplacementReading",
     "SensorError",
     "SensorDisconnected",
+    "SensorConfigurationError",
     "DisplacementSensor",
     "validated_tare_offset_m",
 ]
@@ -59,6 +62,21 @@ class MeasurementError(str, enum.Enum):
     LASER_OFF = "laser_off"
     #: A raw value that is neither a valid distance nor a documented error code.
     UNKNOWN_CODE = "unknown_code"
+
+    # -- discarded by the backend's plausibility checks (the sensor sent a distance,
+    #    but the value cannot be trusted; see ild1320_protocol.PlausibilityFilter)
+    #: A distance in the reserve before the start or after the end of the
+    #: measuring range (the sensor is not specified there).
+    OUTSIDE_MEASURING_RANGE = "outside_measuring_range"
+    #: A distance the measured mass cannot have reached from the previous accepted
+    #: sample in the time between them (speed limit): a corrupted frame.
+    IMPLAUSIBLE_JUMP = "implausible_jump"
+    #: The first frame after bytes were lost or corrupted (framing error): it may
+    #: be made of random bytes that happen to carry valid flag bits.
+    AFTER_FRAMING_ERROR = "after_framing_error"
+    #: A distance not yet confirmed by consecutive consistent samples (no trusted
+    #: previous value: start of the stream or after a real jump).
+    UNCONFIRMED = "unconfirmed"
 
 
 class DisplacementReading(NamedTuple):
@@ -98,6 +116,18 @@ class SensorDisconnected(SensorError):
 
     Call :meth:`DisplacementSensor.reconnect` to recover.
     """
+
+
+class SensorConfigurationError(SensorError):
+    """The connected sensor differs from the configuration (model, range, rate, ...).
+
+    ``mismatches`` lists every difference as a sentence naming the setting, what
+    the sensor reports and what the configuration expects.
+    """
+
+    def __init__(self, message: str, mismatches: "tuple[str, ...]" = ()) -> None:
+        super().__init__(message)
+        self.mismatches = tuple(mismatches)
 
 
 def validated_tare_offset_m(offset_m: float) -> float:
@@ -165,6 +195,13 @@ class DisplacementSensor(abc.ABC):
 
         Implementations validate with :func:`validated_tare_offset_m`.
         """
+
+    def diagnostic_counters(self) -> "dict[str, int]":
+        """Cumulative counters of the backend (bytes and frames discarded, ...), for diagnostics.
+
+        Keys are stable snake_case names; the default backend has none.
+        """
+        return {}
 
     def reconnect(self) -> None:
         """Re-establish the connection (default: ``close()`` then ``open()``)."""
