@@ -231,3 +231,6 @@ def register(subparsers) -> None:
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")
     demo.set_defaults(func=cmd_rig_demo)
+    from .rig_check import register as register_check
+
+    register_check(sub)
