@@ -10,7 +10,14 @@ advances the model with the core's fixed-step RK4 stepper
   latched and the prediction is published with the message's stamp (so
   prediction and measurement line up in a bag);
 * a timer at ``rate_hz`` keeps publishing with the held voltage when voltage
-  messages stop or are slower than the sample rate.
+  messages stop or are slower than the sample rate (stamped "now", extrapolated).
+
+Header stamps never go backwards: a prediction is published only if its stamp is later
+than the last one published. A voltage message older than an extrapolation already
+published (it arrived late) still updates the model exactly (re-integrated from the
+previous input), but its prediction is not published: the next one, newer, includes it.
+Such inputs are counted (``superseded_inputs`` on /diagnostics). If the clock jumps back by
+more than ``max_catch_up_s`` (simulated time restarted), the model starts over from there.
 
 Parameters: ``params_file`` (a preset name LP1/A1/A2 or a parameters YAML, e.g.
 an identified params.yaml), ``rate_hz``, ``dt_s`` (integration step, default
@@ -61,6 +68,9 @@ class ModelNode(Node):
         self.anchor_ns: int | None = None       # stamp of the latest input: exact state below
         self.anchor_state: list | None = None
         self.stale_inputs = 0
+        self.superseded_inputs = 0              # inputs older than the last published prediction
+        self.last_published_ns: int | None = None
+        self.last_tick_ns: int | None = None     # clock at the previous timer tick (detects jumps back)
         self.dt_ns = max(1, int(round(self.dt_s * 1e9)))
         self.late_ticks = 0
         self.resets_for_gaps = 0
@@ -127,9 +137,14 @@ class ModelNode(Node):
         self.anchor_state = list(self.stepper.state)
         return True
 
-    def publish_prediction(self, t_ns: int) -> None:
+    def publish_prediction(self, t_ns: int) -> bool:
+        """Publish the current state stamped t_ns, unless a prediction at or after t_ns is out already."""
+        if self.last_published_ns is not None and t_ns <= self.last_published_ns:
+            return False
         self.pub.publish(make_range(self.stepper.displacement_m, t_ns, self.frame_id))
+        self.last_published_ns = t_ns
         self.published += 1
+        return True
 
     # --------------------------------------------------------- callbacks
     def on_voltage(self, msg: BatteryState) -> None:
@@ -141,11 +156,18 @@ class ModelNode(Node):
         if not self.advance_to(t_ns):
             return
         self.voltage_V = u
-        self.publish_prediction(t_ns)
+        if not self.publish_prediction(t_ns):
+            self.superseded_inputs += 1
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
 
     def on_timer(self) -> None:
         now = self.now_ns()
+        previous, self.last_tick_ns = self.last_tick_ns, now
+        if previous is not None and now < previous - self.max_catch_up_s * 1e9:
+            self.get_logger().warning(
+                f"clock jumped back by {(previous - now) * 1e-9:.3f} s: model restarted at {self.voltage_V:.1f} V")
+            self.stepper.reset(self.voltage_V)
+            self.model_time_ns = self.anchor_ns = self.anchor_state = self.last_published_ns = None
         if self.model_time_ns is None:
             self.model_time_ns = now
             return
@@ -187,6 +209,7 @@ class ModelNode(Node):
             "falling behind" if self.late_ticks else "ok",
             [("published", self.published), ("late_ticks", self.late_ticks),
              ("resets_for_gaps", self.resets_for_gaps), ("stale_inputs", self.stale_inputs),
+             ("superseded_inputs", self.superseded_inputs),
              ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"), ("voltage_V", f"{self.voltage_V:.1f}"),
              ("displacement_m", f"{self.stepper.displacement_m:.9f}")],
         )
