@@ -4,16 +4,19 @@ import importlib.util
 from pathlib import Path
 
 import pytest
-from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import BatteryState, Range
 
-from dea_ros.bag import BagReader
-from dea_ros.nodes.common import SENSOR_QOS, make_range, make_voltage_state
-from dea_ros.nodes.identifier_node import IdentifierNode
+pytest.importorskip("rclpy")
+
+from rclpy.duration import Duration  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.node import Node  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import BatteryState, Range  # noqa: E402
+
+from dea_ros.bag import BagReader  # noqa: E402
+from dea_ros.nodes.common import SENSOR_QOS, make_range, make_voltage_state  # noqa: E402
+from dea_ros.nodes.identifier_node import IdentifierNode  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location(
     "rosbag2_rules", Path(__file__).resolve().parents[1] / "bag" / "rosbag2_rules.py")
