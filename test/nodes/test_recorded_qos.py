@@ -93,3 +93,21 @@ def test_bag_holds_each_discovered_publishers_qos(ros_context, spin_until, tmp_p
 def test_bad_rosbag2_format_stops_with_the_parameter_named(ros_context, tmp_path):
     with pytest.raises(SystemExit, match="parameter 'rosbag2_format'.*use 'jazzy'"):
         _identifier(ros_context, tmp_path, "iron")
+
+
+def test_replay_offers_what_rosbag2_play_offers():
+    """Recorded discovered profiles say history unknown / depth 0: playback uses keep_last 10 and the
+    recorded reliability/durability when all publishers agreed (Rosbag2QoS::adapt_offer_to_recorded_offers)."""
+    from dea_ros.bag import QosProfile
+    from dea_ros.replay import playback_qos
+
+    best_effort = QosProfile("unknown", 0, "best_effort", "volatile")
+    latched = QosProfile("unknown", 0, "reliable", "transient_local")
+    offer = playback_qos([best_effort, best_effort])
+    assert (offer.history, offer.depth) == (HistoryPolicy.KEEP_LAST, 10)
+    assert (offer.reliability, offer.durability) == (ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE)
+    offer = playback_qos([latched])
+    assert (offer.reliability, offer.durability) == (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL)
+    mixed = playback_qos([best_effort, latched])  # publishers disagreed: rosbag2's default offer
+    assert (mixed.reliability, mixed.durability, mixed.depth) == (
+        ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE, 10)
