@@ -129,4 +129,3 @@ def register(subparsers) -> None:
     p.add_argument("--max-gap", type=float, default=10.0, metavar="S",
                    help="pauses in the log longer than this are skipped, not waited out")
     p.set_defaults(func=cmd_replay)
-

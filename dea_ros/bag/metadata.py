@@ -26,11 +26,10 @@ empty (:func:`ros_distro_for_format`: ``$ROS_DISTRO``, else the format's distro 
 distro's rosbag2 requires of these files is described in ``docs/rosbag2_formats.md``.
 """
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Union
-
-import os
 
 import yaml
 

@@ -212,7 +212,8 @@ def decode_bag_metadata(node, distro: str, where: str = "rosbag2_bagfile_informa
                  "serialization_format": as_string(_field(meta, "serialization_format", meta_where),
                                                    meta_where + ".serialization_format"),
                  "qos": [], "type_description_hash": "",
-                 "message_count": as_uint64(_field(entry, "message_count", entry_where), entry_where + ".message_count")}
+                 "message_count": as_uint64(_field(entry, "message_count", entry_where),
+                                            entry_where + ".message_count")}
         qos_node_where = meta_where + ".offered_qos_profiles"
         if distro == "jazzy" and version >= 9:
             items = as_sequence(_field(meta, "offered_qos_profiles", meta_where), qos_node_where)

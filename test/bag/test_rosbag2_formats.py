@@ -118,7 +118,7 @@ def test_humble_bag_passes_humble_and_jazzy_rules(tmp_path, monkeypatch, topics_
 
 @pytest.mark.parametrize("ros_distro, recorded", [("jazzy", "jazzy"), ("kilted", "kilted"), (None, "jazzy")])
 def test_jazzy_bag_passes_jazzy_rules_and_names_its_distro(tmp_path, monkeypatch, topics_spec, schedule,
-                                                          fields_equal, ros_distro, recorded):
+                                                           fields_equal, ros_distro, recorded):
     if ros_distro is None:
         monkeypatch.delenv("ROS_DISTRO", raising=False)
     else:

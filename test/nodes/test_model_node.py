@@ -91,7 +91,8 @@ def test_prediction_stamps_never_go_backwards_when_inputs_arrive_late(ros_contex
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     ex.add_node(peer)
-    assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and peer.count_publishers("displacement_predicted") > 0)
+    assert spin_until(ex, lambda: pub.get_subscription_count() > 0
+                      and peer.count_publishers("displacement_predicted") > 0)
 
     def stamp_ns(msg):
         return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
