@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 import time
 
-__all__ = ["register", "replay", "message_class"]
+__all__ = ["register", "replay", "message_class", "playback_qos"]
 
 
 def message_class(type_name: str):
@@ -22,15 +22,21 @@ def message_class(type_name: str):
         raise ValueError(f"message type {type_name!r} is not installed (source its ROS package)") from None
 
 
-def _rclpy_qos(profiles):
+def playback_qos(profiles):
+    """The offer for playback, as rosbag2's ``Rosbag2QoS::adapt_offer_to_recorded_offers``.
+
+    History is always keep_last 10 (recorded profiles of discovered publishers say ``unknown``/0);
+    reliability and durability are the recorded ones when every recorded publisher agreed,
+    else rosbag2's default offer (reliable, volatile).
+    """
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    if not profiles:
+    if not profiles or len({(p.reliability, p.durability) for p in profiles}) != 1:
         return QoSProfile(depth=10)
     p = profiles[0]
     return QoSProfile(
-        history=HistoryPolicy.KEEP_ALL if p.history == "keep_all" else HistoryPolicy.KEEP_LAST,
-        depth=max(1, int(p.depth)),
+        history=HistoryPolicy.KEEP_LAST,
+        depth=10,
         reliability=ReliabilityPolicy.BEST_EFFORT if p.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if p.durability == "transient_local" else DurabilityPolicy.VOLATILE,
     )
@@ -59,7 +65,7 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
         t_first = next((m.log_time_ns for m in bag.raw_messages(wanted) if m.log_time_ns > 0), 0)
     rclpy.init()
     node = Node("dea_ros_replay")
-    pubs = {t: node.create_publisher(message_class(info[t].type), t, _rclpy_qos(info[t].qos_profiles))
+    pubs = {t: node.create_publisher(message_class(info[t].type), t, playback_qos(info[t].qos_profiles))
             for t in wanted}
     clock_pub = node.create_publisher(Clock, "/clock", 10) if publish_clock else None
     published = 0
@@ -123,4 +129,3 @@ def register(subparsers) -> None:
     p.add_argument("--max-gap", type=float, default=10.0, metavar="S",
                    help="pauses in the log longer than this are skipped, not waited out")
     p.set_defaults(func=cmd_replay)
-

@@ -5,6 +5,7 @@
 * ``dea-ros rig demo``: the main job. The same rig in simulated time (the mock publishes
   ``/clock`` at ``--speed`` times real time, every node runs with ``use_sim_time``), plus
   identifier_node running a protocol: bag -> experiments -> identified parameters -> report.
+  ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
   Ends by printing where the bag, the parameters and the plots are.
 
 Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
@@ -166,7 +167,7 @@ def cmd_rig_demo(args) -> int:
         ident = rig.start("identifier_node", {
             "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
             "exit_when_done": True, "command_rate_hz": args.rate, "membrane": args.membrane,
-            "identify": not args.no_identify,
+            "identify": not args.no_identify, "rosbag2_format": args.rosbag2_format,
         })
         while ident.poll() is None:
             problem = rig.check_alive()
@@ -228,6 +229,10 @@ def register(subparsers) -> None:
     demo.add_argument("--out", default="runs", help="folder of the runs")
     demo.add_argument("--run-name", help="folder name of this run (default: demo_<date>)")
     demo.add_argument("--no-identify", action="store_true", help="record only")
+    demo.add_argument("--rosbag2-format", choices=("auto", "humble", "jazzy"), default="auto",
+                      help="bag format: humble (metadata version 5: Humble and newer read it), jazzy (version 9: "
+                           "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
+                           "`dea-ros bag convert` changes it later")
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")
     demo.set_defaults(func=cmd_rig_demo)

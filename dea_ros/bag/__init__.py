@@ -39,10 +39,15 @@ On-disk format (what ``ros2 bag record -s mcap -o <dir>`` writes)
   of the profile list) and ``topic_type_hash`` (``RIHS01_...``; omitted when unknown).
 * MCAP Metadata record ``rosbag2`` with ``serialized_metadata`` (the bag information, written on
   open and on close like rosbag2_storage_mcap), plus the records added with ``add_metadata``.
-* ``rosbag2_format="jazzy"`` (default): metadata version 9 with string QoS policies
-  (``keep_last``, ``reliable``, ``best_effort``, ``volatile`` ...) -> Jazzy, Kilted, Rolling.
+* ``rosbag2_format="jazzy"``: metadata version 9 with string QoS policies (``keep_last``,
+  ``reliable``, ``best_effort``, ``volatile`` ...) -> Jazzy, Kilted, Rolling.
   ``rosbag2_format="humble"``: metadata version 5 with integer QoS enums in a YAML string, no
-  type hashes -> readable by Humble (whose reader rejects version 9 metadata).
+  ``type_description_hash``/``custom_data``/``ros_distro`` fields, an MCAP ``rosbag2`` record
+  ``{ROS_DISTRO: ...}`` as Humble's storage plugin writes -> readable by Humble and every newer
+  distro (Humble's reader rejects version 9 metadata). Default (``None``/``"auto"``): from
+  ``$ROS_DISTRO`` (Humble/Iron -> humble, else jazzy). ``convert_bag(dir, "humble")`` (CLI
+  ``dea-ros bag convert DIR --to humble``) rewrites a bag in the other format, losslessly.
+  ``docs/rosbag2_formats.md`` lists what each distro's parser requires and how it was checked.
 * Timestamps: ``log_time`` = receive/record time (rosbag2 ``recv_timestamp``), ``publish_time``
   = send time (defaults to log time), both integer ns since the Unix epoch.
 
@@ -52,7 +57,8 @@ Opening the bags with ROS tools
 * ``ros2 bag info <dir>`` and ``ros2 bag play <dir>`` (Humble or newer with the MCAP storage
   plugin: ``sudo apt install ros-$ROS_DISTRO-rosbag2-storage-mcap``; it is the default storage
   from Iron on; on Humble add ``-s mcap`` if auto-detection fails). Record Humble-playable bags
-  with ``BagWriter(..., rosbag2_format="humble")``. Playback re-offers the recorded QoS.
+  with ``BagWriter(..., rosbag2_format="humble")`` (the default where ``ROS_DISTRO=humble``) or
+  convert them afterwards. Playback re-offers the recorded QoS.
 * Foxglove Studio / Foxglove app: open ``<dir>/<dirname>_0.mcap`` (File > Open local file); the
   ``ros2msg`` schemas in the file decode everything without a ROS installation.
 * PlotJuggler: load ``<dir>/<dirname>_0.mcap`` with the MCAP data loader (PlotJuggler >= 3.6 ships
@@ -64,8 +70,10 @@ Opening the bags with ROS tools
   first (``ros2 bag reindex`` cannot repair a file without footer).
 """
 
+from .convert import convert_bag
 from .definitions import MessageDefinition, MessageDefinitionStore, default_search_prefixes
 from .errors import BagError, BagTruncatedWarning, BagWarning
+from .metadata import default_rosbag2_format, resolve_rosbag2_format
 from .qos import (
     INFINITE_DURATION,
     QosDuration,
@@ -89,6 +97,9 @@ __all__ = [
     "TopicInfo",
     "check_writable",
     "recover_bag",
+    "convert_bag",
+    "default_rosbag2_format",
+    "resolve_rosbag2_format",
     "RecoveryReport",
     "DEFAULT_MIN_FREE_BYTES",
     "BagError",

@@ -3,13 +3,25 @@
 The texts are byte-for-byte copies of the ``share/<pkg>/msg/<Type>.msg`` files of ROS 2 Kilted
 (std_msgs / sensor_msgs / diagnostic_msgs 5.5.1, builtin_interfaces / rosgraph_msgs 2.3.0), so a
 bag written without ROS carries the same schema text as one written by ``ros2 bag record``.
-Only the types the DEA rig publishes are included; other types need a ROS installation (or an
+They are a fallback only: when a ROS installation (apt or the PyPI wheels) provides the
+definitions, its own texts are recorded (they differ between distros: Humble's Range has no
+``variance``, and its comments differ). Only the types the DEA rig publishes are included; other types need a ROS installation (or an
 explicit ``extra_definitions`` mapping passed to :class:`~dea_ros.bag.definitions.MessageDefinitionStore`).
 """
 
 from types import MappingProxyType
 
-__all__ = ["VENDORED_MSG_TEXTS"]
+__all__ = ["VENDORED_MSG_TEXTS", "VENDORED_PACKAGE_VERSIONS"]
+
+#: Package versions the texts were copied from (ROS 2 Kilted); tests compare them byte for byte
+#: with installed files only when the installed package has this version.
+VENDORED_PACKAGE_VERSIONS = MappingProxyType({
+    "std_msgs": "5.5.1",
+    "sensor_msgs": "5.5.1",
+    "diagnostic_msgs": "5.5.1",
+    "builtin_interfaces": "2.3.0",
+    "rosgraph_msgs": "2.3.0",
+})
 
 _TEXTS = {
     "builtin_interfaces/msg/Time": (

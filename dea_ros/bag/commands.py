@@ -1,4 +1,4 @@
-"""``dea-ros bag info BAG`` and ``dea-ros bag recover BAG`` (no ROS needed)."""
+"""``dea-ros bag info BAG``, ``dea-ros bag recover BAG``, ``dea-ros bag convert BAG --to FORMAT`` (no ROS needed)."""
 from __future__ import annotations
 
 import json
@@ -45,8 +45,16 @@ def cmd_bag_recover(args) -> int:
     return 0
 
 
+def cmd_bag_convert(args) -> int:
+    from .convert import convert_bag
+
+    target = convert_bag(args.bag, args.to, args.out)
+    print(f"{target}: {args.bag} in the {args.to} rosbag2 format")
+    return 0
+
+
 def register(subparsers) -> None:
-    p = subparsers.add_parser("bag", help="inspect or recover an MCAP bag")
+    p = subparsers.add_parser("bag", help="inspect, recover or convert an MCAP bag")
     sub = p.add_subparsers(dest="bag_command", metavar="ACTION")
     sub.required = True
     info = sub.add_parser("info", help="topics, counts, QoS, duration")
@@ -56,3 +64,10 @@ def register(subparsers) -> None:
     rec = sub.add_parser("recover", help="make a bag readable after the recorder was killed")
     rec.add_argument("bag")
     rec.set_defaults(func=cmd_bag_recover)
+    conv = sub.add_parser("convert", help="rewrite a bag in the Humble or the Jazzy rosbag2 format",
+                          description="Humble's ros2 bag reads only the humble format (metadata version 5); "
+                                      "Jazzy and newer read both. Messages, schemas, QoS and metadata are kept.")
+    conv.add_argument("bag", help="bag directory")
+    conv.add_argument("--to", required=True, choices=("humble", "jazzy"), help="target format")
+    conv.add_argument("--out", help="new bag directory (default: BAG_<format> beside BAG)")
+    conv.set_defaults(func=cmd_bag_convert)

@@ -19,8 +19,14 @@ Metadata record named ``rosbag2`` under ``serialized_metadata``, as ``rosbag2_st
 metadata version from it to decode the channels' ``offered_qos_profiles``.
 An empty bag has ``starting_time`` = ``INT64_MAX`` and ``duration`` = 0, as rosbag2's
 ``SequentialWriter::init_metadata`` leaves it.
+
+Which format: :func:`default_rosbag2_format` picks it from ``$ROS_DISTRO`` (``humble`` and
+``iron`` -> ``"humble"``, anything else or unset -> ``"jazzy"``); ``ros_distro`` is never written
+empty (:func:`ros_distro_for_format`: ``$ROS_DISTRO``, else the format's distro name). What each
+distro's rosbag2 requires of these files is described in ``docs/rosbag2_formats.md``.
 """
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Union
@@ -42,6 +48,10 @@ __all__ = [
     "load_metadata_yaml",
     "parse_bag_metadata",
     "metadata_version_for_format",
+    "format_for_metadata_version",
+    "default_rosbag2_format",
+    "resolve_rosbag2_format",
+    "ros_distro_for_format",
 ]
 
 #: rosbag2 format name -> ``metadata.yaml`` version written.
@@ -51,6 +61,10 @@ METADATA_FILENAME = "metadata.yaml"
 EMPTY_BAG_STARTING_TIME_NS = 2**63 - 1
 
 
+#: ROS distributions whose rosbag2 cannot read metadata version 9 (they get the Humble format).
+_PRE_JAZZY_DISTROS = ("humble", "iron")
+
+
 def metadata_version_for_format(rosbag2_format: str) -> int:
     """``"jazzy"`` -> 9, ``"humble"`` -> 5; ``BagError`` for anything else."""
     try:
@@ -58,8 +72,39 @@ def metadata_version_for_format(rosbag2_format: str) -> int:
     except KeyError:
         raise BagError(
             f"rosbag2_format={rosbag2_format!r} is not supported; use 'jazzy' (metadata version 9, "
-            "Jazzy/Kilted/Rolling) or 'humble' (metadata version 5)"
+            "Jazzy/Kilted/Rolling), 'humble' (metadata version 5, Humble and newer) or 'auto' "
+            "(from $ROS_DISTRO)"
         ) from None
+
+
+def format_for_metadata_version(version: int) -> str:
+    """``9`` -> ``"jazzy"``; any version below 9 -> ``"humble"`` (Humble's rosbag2 reads up to 8)."""
+    return "jazzy" if version >= ROSBAG2_FORMAT_VERSIONS["jazzy"] else "humble"
+
+
+def default_rosbag2_format(ros_distro: Optional[str] = None) -> str:
+    """The format the distro's ``ros2 bag`` reads: ``"humble"`` for Humble (and Iron), else ``"jazzy"``.
+
+    :param ros_distro: distro name; default ``$ROS_DISTRO``. Unset (e.g. ROS from PyPI wheels)
+        gives ``"jazzy"``, which Jazzy, Kilted and Rolling read.
+    """
+    distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
+    return "humble" if distro.strip().lower() in _PRE_JAZZY_DISTROS else "jazzy"
+
+
+def resolve_rosbag2_format(rosbag2_format: Optional[str]) -> str:
+    """``None``/``""``/``"auto"`` -> :func:`default_rosbag2_format`; a format name is checked."""
+    if rosbag2_format is None or str(rosbag2_format).strip().lower() in ("", "auto"):
+        return default_rosbag2_format()
+    name = str(rosbag2_format).strip().lower()
+    metadata_version_for_format(name)  # raises BagError naming the valid values
+    return name
+
+
+def ros_distro_for_format(rosbag2_format: str, ros_distro: Optional[str] = None) -> str:
+    """The ``ros_distro`` to record: ``ros_distro``, else ``$ROS_DISTRO``, else the format's name."""
+    distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
+    return distro.strip() or rosbag2_format
 
 
 @dataclass
@@ -142,7 +187,8 @@ def build_bag_metadata(
     if version >= 6:
         info["custom_data"] = {str(k): str(v) for k, v in custom_data.items()} if custom_data else None
     if version >= 8:
-        info["ros_distro"] = ros_distro
+        # rosbag2 writes $ROS_DISTRO; never leave it empty (unset with the PyPI wheels).
+        info["ros_distro"] = ros_distro or format_for_metadata_version(version)
     return info
 
 

@@ -32,15 +32,27 @@ from .metadata import (
     dump_metadata_yaml,
     dump_serialized_metadata,
     metadata_version_for_format,
+    resolve_rosbag2_format,
+    ros_distro_for_format,
 )
 from .qos import QosProfile, command_qos, serialize_qos_profiles
 
-__all__ = ["BagWriter", "check_writable", "DEFAULT_MIN_FREE_BYTES", "library_identifier"]
+__all__ = [
+    "BagWriter",
+    "check_writable",
+    "DEFAULT_MIN_FREE_BYTES",
+    "library_identifier",
+    "ROSBAG2_METADATA_RECORD",
+    "CUSTOM_DATA_RECORD",
+]
 
 #: Free disk space required before a recording starts (64 MiB).
 DEFAULT_MIN_FREE_BYTES = 64 * 1024 * 1024
 #: Name of the MCAP Metadata record holding the serialized ``metadata.yaml`` (rosbag2 convention).
 ROSBAG2_METADATA_RECORD = "rosbag2"
+#: MCAP Metadata record keeping ``custom_data`` in Humble-format bags (metadata version 5 has no
+#: ``custom_data`` field); :func:`dea_ros.bag.convert_bag` restores it when converting to Jazzy.
+CUSTOM_DATA_RECORD = "rosbag2.custom_data"
 
 
 def library_identifier() -> str:
@@ -128,10 +140,14 @@ class BagWriter:
     :param flush_period_s: maximum age of unflushed messages, in seconds (``None``: flush only when
         a chunk is full and on close; not crash-safe).
     :param fsync: ``os.fsync`` on every flush (survive power loss, not only process death).
-    :param rosbag2_format: ``"jazzy"`` (metadata version 9: Jazzy, Kilted, Rolling) or
-        ``"humble"`` (metadata version 5, readable by Humble).
-    :param ros_distro: stored in ``metadata.yaml`` (v9); default ``$ROS_DISTRO`` or ``""``.
-    :param custom_data: ``custom_data`` key/value strings of ``metadata.yaml`` (v9).
+    :param rosbag2_format: ``"jazzy"`` (metadata version 9: Jazzy, Kilted, Rolling),
+        ``"humble"`` (metadata version 5, readable by Humble and newer) or ``None``/``"auto"``:
+        from ``$ROS_DISTRO`` (:func:`~dea_ros.bag.metadata.default_rosbag2_format`).
+    :param ros_distro: the distro recorded (``metadata.yaml`` v9; MCAP ``rosbag2`` record
+        ``ROS_DISTRO`` for Humble, as Humble's storage plugin writes); default ``$ROS_DISTRO``,
+        else the format's name (never empty).
+    :param custom_data: ``custom_data`` key/value strings of ``metadata.yaml`` (v9; kept in the
+        MCAP record ``rosbag2.custom_data`` for Humble).
     :param definitions: message definition source (default: a new :class:`MessageDefinitionStore`).
     :param min_free_bytes: free disk space required to start (see :func:`check_writable`).
     """
@@ -145,7 +161,7 @@ class BagWriter:
         chunk_size_bytes: int = 768 * 1024,
         flush_period_s: Optional[float] = 1.0,
         fsync: bool = False,
-        rosbag2_format: str = "jazzy",
+        rosbag2_format: Optional[str] = None,
         ros_distro: Optional[str] = None,
         custom_data: Optional[Mapping[str, str]] = None,
         definitions: Optional[MessageDefinitionStore] = None,
@@ -155,11 +171,12 @@ class BagWriter:
             raise BagError(f"compression={compression!r} is not supported; use one of {COMPRESSIONS}")
         if flush_period_s is not None and not flush_period_s > 0:
             raise BagError(f"flush_period_s={flush_period_s!r} must be > 0 s or None")
-        self._version = metadata_version_for_format(rosbag2_format)
+        self._format = resolve_rosbag2_format(rosbag2_format)
+        self._version = metadata_version_for_format(self._format)
         self._path = Path(path).expanduser()
         check_writable(self._path, min_free_bytes)
         self._definitions = definitions if definitions is not None else MessageDefinitionStore()
-        self._ros_distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
+        self._ros_distro = ros_distro_for_format(self._format, ros_distro)
         self._custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
         self._flush_period = flush_period_s
         self._fsync = fsync
@@ -191,6 +208,12 @@ class BagWriter:
                     ROSBAG2_METADATA_RECORD,
                     {"serialized_metadata": dump_serialized_metadata(self._bag_info())},
                 )
+            else:
+                # Humble's rosbag2_storage_mcap (MCAPStorage::ensure_rosdistro_metadata_added)
+                # writes this record; Jazzy's read_metadata takes ROS_DISTRO from it.
+                self._mcap.add_metadata(ROSBAG2_METADATA_RECORD, {"ROS_DISTRO": self._ros_distro})
+                if self._custom_data:
+                    self._mcap.add_metadata(CUSTOM_DATA_RECORD, dict(self._custom_data))
             self._mcap.flush(fsync=self._fsync)
         except BaseException:
             self._file.close()
@@ -213,6 +236,16 @@ class BagWriter:
     def mcap_path(self) -> Path:
         """The ``<dirname>_0.mcap`` storage file."""
         return self._path / self._mcap_name
+
+    @property
+    def rosbag2_format(self) -> str:
+        """``"jazzy"`` or ``"humble"``: the format written."""
+        return self._format
+
+    @property
+    def ros_distro(self) -> str:
+        """The distro name recorded in the bag."""
+        return self._ros_distro
 
     @property
     def metadata_version(self) -> int:
@@ -242,6 +275,7 @@ class BagWriter:
         qos: Union[QosProfile, Sequence[QosProfile], None] = None,
         *,
         type_hash: Optional[str] = None,
+        schema_text: Optional[str] = None,
     ) -> None:
         """Register a topic (MCAP schema + channel) before writing to it.
 
@@ -251,6 +285,8 @@ class BagWriter:
             (reliable, volatile, keep_last 10). Use :func:`~dea_ros.bag.qos.sensor_data_qos` for
             best-effort sensor streams.
         :param type_hash: ``RIHS01_...`` to store; default from the installed type description.
+        :param schema_text: the full ``ros2msg`` schema text to store (e.g. copied from another
+            bag); default: built from the installed (else vendored) ``.msg`` files.
 
         Registering the same topic again with the same type and QoS is a no-op; anything else
         raises :class:`BagError`.
@@ -279,19 +315,26 @@ class BagWriter:
                         f"{existing.type_name} with QoS {existing.qos}; a topic has one type and QoS"
                     )
                 return
-            definition = self._definitions.full_definition(canonical)
-            resolved_hash = definition.type_hash if type_hash is None else type_hash
+            if schema_text is None:
+                definition = self._definitions.full_definition(canonical)
+                text, encoding, known_hash = definition.text, definition.encoding, definition.type_hash
+            else:
+                text, encoding, known_hash = schema_text, "ros2msg", ""
+            resolved_hash = known_hash if type_hash is None else type_hash
             if resolved_hash and not resolved_hash.startswith("RIHS01_"):
                 raise BagError(f"type_hash {resolved_hash!r} of topic {name} must start with 'RIHS01_'")
             schema_id = self._schema_ids.get(canonical)
             if schema_id is None:
-                schema_id = self._mcap.add_schema(canonical, definition.encoding, definition.text.encode("utf-8"))
+                schema_id = self._mcap.add_schema(canonical, encoding, text.encode("utf-8"))
                 self._schema_ids[canonical] = schema_id
             channel_metadata = {"offered_qos_profiles": serialize_qos_profiles(profiles, self._version)}
-            if resolved_hash and self._version >= 7:
+            if resolved_hash:
+                # Jazzy's MCAPStorage::create_topic writes it; Humble's reader ignores channel
+                # metadata other than offered_qos_profiles, so Humble bags keep it too (lossless
+                # conversion between the formats).
                 channel_metadata["topic_type_hash"] = resolved_hash
             channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
-            self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, definition.text)
+            self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
             self._mcap.flush(fsync=self._fsync)
 
     def write_serialized(
@@ -389,8 +432,8 @@ class BagWriter:
         """
         if not isinstance(name, str) or not name:
             raise BagError(f"metadata name must be a non-empty string, got {name!r}")
-        if name == ROSBAG2_METADATA_RECORD:
-            raise BagError("metadata name 'rosbag2' is reserved for rosbag2's bag information; choose another")
+        if name in (ROSBAG2_METADATA_RECORD, CUSTOM_DATA_RECORD):
+            raise BagError(f"metadata name {name!r} is reserved for rosbag2's bag information; choose another")
         if not isinstance(data, Mapping):
             raise BagError(f"metadata {name!r} must be a mapping of str to str, got {type(data).__name__}")
         bad = [k for k, v in data.items() if not isinstance(k, str) or not isinstance(v, str)]

@@ -7,8 +7,10 @@
    ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
    and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
 3. Records every rig topic (``voltage_cmd``, ``voltage``, ``displacement``,
-   ``displacement_predicted``) as raw CDR with the publishers' offered QoS, in a rosbag2 MCAP
-   bag (``output_dir/<run>/bag``), flushed at least once a second.
+   ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
+   flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
+   offered by each of its publishers discovered when its first message arrives (one profile per
+   publisher). ``rosbag2_format``: ``auto`` (from ``ROS_DISTRO``), ``humble`` or ``jazzy``.
 4. At the end: 0 V, bag closed, then in a background thread the offline identification
    (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
 
@@ -28,12 +30,12 @@ from datetime import datetime
 from pathlib import Path
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSProfile
 from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
-from ..bag import BagError, BagWriter, QosProfile, check_writable
+from ..bag import BagError, BagWriter, QosProfile, check_writable, qos_from_dict, resolve_rosbag2_format
 from ..bag.extract import EXPERIMENT_METADATA
 from ..protocols import ProtocolError, load_protocol
 from .common import (
@@ -60,11 +62,24 @@ RECORDED = (
 
 
 def qos_to_bag(profile) -> QosProfile:
-    """An rclpy QoSProfile (a publisher's offered QoS) as the bag's QoS description."""
-    history = "keep_all" if profile.history == HistoryPolicy.KEEP_ALL else "keep_last"
-    reliability = "best_effort" if profile.reliability == ReliabilityPolicy.BEST_EFFORT else "reliable"
-    durability = "transient_local" if profile.durability == DurabilityPolicy.TRANSIENT_LOCAL else "volatile"
-    return QosProfile(history=history, depth=int(profile.depth), reliability=reliability, durability=durability)
+    """An rclpy QoSProfile (e.g. a discovered publisher's offered QoS) as rosbag2 stores it.
+
+    Every field is kept (rmw enum values; durations as {sec, nsec}: rmw's infinite duration
+    stays 9223372036 s 854775807 ns). Discovery reports history ``unknown`` and depth 0, as
+    ``ros2 bag record`` then records too.
+    """
+    def duration(value) -> dict:
+        sec, nsec = divmod(int(value.nanoseconds), 1_000_000_000)
+        return {"sec": sec, "nsec": nsec}
+
+    return qos_from_dict({
+        "history": int(profile.history), "depth": int(profile.depth),
+        "reliability": int(profile.reliability), "durability": int(profile.durability),
+        "deadline": duration(profile.deadline), "lifespan": duration(profile.lifespan),
+        "liveliness": int(profile.liveliness),
+        "liveliness_lease_duration": duration(profile.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(profile.avoid_ros_namespace_conventions),
+    })
 
 
 class IdentifierNode(Node):
@@ -81,7 +96,9 @@ class IdentifierNode(Node):
         self.min_free_mb = declare_float(self, "min_free_mb", 100.0, "free disk needed before starting, MB", 0.0, 1e6)
         self.max_voltage_V = declare_float(self, "max_voltage_V", 0.0, "refuse protocols above this (0: no check)",
                                            0.0, 30000.0)
-        self.bag_format = declare_str(self, "rosbag2_format", "jazzy", "jazzy (Jazzy+) or humble metadata")
+        self.bag_format = declare_str(self, "rosbag2_format", "auto",
+                                      "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
+                                      "or jazzy (Jazzy and newer)")
         self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
         self.state = "starting"
         self.error = ""
@@ -100,6 +117,10 @@ class IdentifierNode(Node):
             self.segments = self.protocol.schedule(self.max_voltage_V or None)
         except ProtocolError as exc:
             raise SystemExit(f"identifier_node: parameter 'protocol': {exc}") from None
+        try:
+            self.bag_format = resolve_rosbag2_format(self.bag_format)
+        except BagError as exc:
+            raise SystemExit(f"identifier_node: parameter 'rosbag2_format': {exc}") from None
         self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
         self.bag_dir = self.run_dir / "bag"
         self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
@@ -127,26 +148,53 @@ class IdentifierNode(Node):
         self.bag = BagWriter(self.bag_dir, flush_period_s=0.5, rosbag2_format=self.bag_format,
                              min_free_bytes=int(self.min_free_mb * 1e6))
         self.topic_names = {}
+        self.pending_topics = {}  # topic -> (type, fallback QoS): registered on its first message
+        self.topic_lock = threading.Lock()
         for rel, type_name, msg_type, qos in RECORDED:
             full = self.resolve_topic_name(rel)
             self.topic_names[rel] = full
-            self.bag.add_topic(full, type_name, [qos_to_bag(qos)])
+            self.pending_topics[full] = (type_name, qos)
             # deep queues: the recorder must not drop a burst (best effort drops only on overflow)
             record_qos = QoSProfile(reliability=qos.reliability, durability=qos.durability,
                                     history=HistoryPolicy.KEEP_LAST, depth=5000)
             self.create_subscription(msg_type, rel, self._recorder(full), record_qos, raw=True)
         self.segment_topic = self.resolve_topic_name("~/segment")
-        self.bag.add_topic(self.segment_topic, "std_msgs/msg/String", [qos_to_bag(LATCHED_QOS)])
+        self.bag.add_topic(self.segment_topic, "std_msgs/msg/String", self.offered_qos(self.segment_topic, LATCHED_QOS))
         self.ready_subs = [
             self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_voltage_seen, SENSOR_QOS),
             self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement_seen, SENSOR_QOS),
         ]
+
+    def offered_qos(self, topic: str, fallback) -> list:
+        """One profile per discovered publisher of ``topic`` (``fallback`` if none is known yet)."""
+        profiles = [qos_to_bag(info.qos_profile) for info in self.get_publishers_info_by_topic(topic)]
+        if not profiles:
+            self.get_logger().warning(f"no publisher of {topic} discovered yet: recording its QoS as configured")
+            profiles = [qos_to_bag(fallback)]
+        return profiles
+
+    def register_topic(self, topic: str, only_if_published: bool = False) -> None:
+        """Add a recorded topic to the bag with its publishers' QoS (once; thread-safe)."""
+        with self.topic_lock:
+            pending = self.pending_topics.get(topic)
+            if pending is None:
+                return
+            if only_if_published and not self.get_publishers_info_by_topic(topic):
+                return  # never published: not in the bag, as with ros2 bag record
+            del self.pending_topics[topic]
+            self.bag.add_topic(topic, pending[0], self.offered_qos(topic, pending[1]))
 
     def _recorder(self, topic: str):
         def record(data: bytes) -> None:
             bag = self.bag
             if bag is None or bag.closed:
                 return
+            if topic in self.pending_topics:
+                try:
+                    self.register_topic(topic)
+                except BagError as exc:
+                    self.get_logger().error(f"recording {topic} failed: {exc}", throttle_duration_sec=2.0)
+                    return
             now_ns = self.get_clock().now().nanoseconds
             if now_ns == 0:  # simulated time before the first /clock: no valid log time yet
                 self.skipped_before_clock += 1
@@ -241,6 +289,8 @@ class IdentifierNode(Node):
             if self.bag is None or self.bag.closed:
                 return
             completed = max(0, min(self.segment_index, len(self.segments)))
+            for topic in list(self.pending_topics):  # published but no message arrived: count 0
+                self.register_topic(topic, only_if_published=True)
             if self.t0_ns is not None:
                 self.record_experiment_metadata(completed, aborted)
             path = self.bag.close()

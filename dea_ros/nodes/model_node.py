@@ -9,12 +9,21 @@ advances the model with the core's fixed-step RK4 stepper
   previous voltage held (zero-order hold, like the DAQ), the new voltage is
   latched and the prediction is published with the message's stamp (so
   prediction and measurement line up in a bag);
-* a timer at ``rate_hz`` keeps publishing with the held voltage when voltage
-  messages stop or are slower than the sample rate.
+* a timer at ``rate_hz`` keeps publishing with the held voltage (extrapolated,
+  stamped "now") when no voltage message came for ``input_timeout_s`` (at least two
+  periods): the input stopped, or is slower than that.
+
+Header stamps never go backwards: a prediction is published only if its stamp is later
+than the last one published. A voltage message older than an extrapolation already
+published (it arrived late) still updates the model exactly (re-integrated from the
+previous input), but its prediction is not published: the next one, newer, includes it.
+Such inputs are counted (``superseded_inputs`` on /diagnostics); ``input_timeout_s``
+(default 50 ms) keeps them rare: inputs delayed less than that are never superseded. If the clock jumps back by
+more than ``max_catch_up_s`` (simulated time restarted), the model starts over from there.
 
 Parameters: ``params_file`` (a preset name LP1/A1/A2 or a parameters YAML, e.g.
 an identified params.yaml), ``rate_hz``, ``dt_s`` (integration step, default
-1/rate_hz), ``max_catch_up_s``. Services: ``~/reset`` (std_srvs/Trigger: back to
+1/rate_hz), ``max_catch_up_s``, ``input_timeout_s``. Services: ``~/reset`` (std_srvs/Trigger: back to
 the static equilibrium at the held voltage), ``~/reload`` (reload params_file).
 Falling behind (a tick later than 2 periods, or a catch-up longer than
 ``max_catch_up_s``) is counted, logged (throttled) and reported on /diagnostics.
@@ -54,6 +63,9 @@ class ModelNode(Node):
         self.dt_s = dt if dt > 0 else 1.0 / self.rate_hz
         self.max_catch_up_s = declare_float(self, "max_catch_up_s", 1.0,
                                             "longest gap integrated in one go; longer gaps reset the model", 0.0, 60.0)
+        self.input_timeout_s = max(2.0 / self.rate_hz, declare_float(
+            self, "input_timeout_s", 0.05, "extrapolate (timer) only after this long without voltage input, s "
+            "(at least 2/rate_hz)", 0.0, 60.0))
         self.frame_id = declare_str(self, "frame_id", "dea_model", "frame_id of the predictions")
         self.stepper = self._make_stepper(self.params_file)
         self.voltage_V = 0.0
@@ -61,6 +73,10 @@ class ModelNode(Node):
         self.anchor_ns: int | None = None       # stamp of the latest input: exact state below
         self.anchor_state: list | None = None
         self.stale_inputs = 0
+        self.superseded_inputs = 0              # inputs older than the last published prediction
+        self.last_published_ns: int | None = None
+        self.last_tick_ns: int | None = None     # clock at the previous timer tick (detects jumps back)
+        self.last_input_ns: int | None = None    # clock when the latest input (or the start) was seen
         self.dt_ns = max(1, int(round(self.dt_s * 1e9)))
         self.late_ticks = 0
         self.resets_for_gaps = 0
@@ -127,9 +143,14 @@ class ModelNode(Node):
         self.anchor_state = list(self.stepper.state)
         return True
 
-    def publish_prediction(self, t_ns: int) -> None:
+    def publish_prediction(self, t_ns: int) -> bool:
+        """Publish the current state stamped t_ns, unless a prediction at or after t_ns is out already."""
+        if self.last_published_ns is not None and t_ns <= self.last_published_ns:
+            return False
         self.pub.publish(make_range(self.stepper.displacement_m, t_ns, self.frame_id))
+        self.last_published_ns = t_ns
         self.published += 1
+        return True
 
     # --------------------------------------------------------- callbacks
     def on_voltage(self, msg: BatteryState) -> None:
@@ -140,19 +161,32 @@ class ModelNode(Node):
         t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         if not self.advance_to(t_ns):
             return
+        self.last_input_ns = self.now_ns()
         self.voltage_V = u
-        self.publish_prediction(t_ns)
+        if not self.publish_prediction(t_ns):
+            self.superseded_inputs += 1
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
 
     def on_timer(self) -> None:
         now = self.now_ns()
+        previous, self.last_tick_ns = self.last_tick_ns, now
+        if previous is not None and now < previous - self.max_catch_up_s * 1e9:
+            self.get_logger().warning(
+                f"clock jumped back by {(previous - now) * 1e-9:.3f} s: model restarted at {self.voltage_V:.1f} V")
+            self.stepper.reset(self.voltage_V)
+            self.model_time_ns = self.anchor_ns = self.anchor_state = self.last_published_ns = None
+            self.last_input_ns = None
         if self.model_time_ns is None:
-            self.model_time_ns = now
+            self.model_time_ns = self.last_input_ns = now
             return
+        if self.last_input_ns is None:
+            self.last_input_ns = now
         behind_s = (now - self.model_time_ns) * 1e-9
-        if behind_s > 2.0 / self.rate_hz:  # no input for two periods: extrapolate with the held voltage
-            if behind_s > 4.0 / self.rate_hz:
-                self.late_ticks += 1
+        quiet_s = (now - self.last_input_ns) * 1e-9
+        if quiet_s > self.input_timeout_s and behind_s > 0.5 / self.rate_hz:
+            # no input for a while: extrapolate with the held voltage
+            if previous is not None and (now - previous) * 1e-9 > 2.0 / self.rate_hz:
+                self.late_ticks += 1  # this tick came more than two periods after the previous one
             if behind_s > self.max_catch_up_s:
                 self.stepper.reset(self.voltage_V)
             else:
@@ -187,6 +221,7 @@ class ModelNode(Node):
             "falling behind" if self.late_ticks else "ok",
             [("published", self.published), ("late_ticks", self.late_ticks),
              ("resets_for_gaps", self.resets_for_gaps), ("stale_inputs", self.stale_inputs),
+             ("superseded_inputs", self.superseded_inputs),
              ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"), ("voltage_V", f"{self.voltage_V:.1f}"),
              ("displacement_m", f"{self.stepper.displacement_m:.9f}")],
         )

@@ -1,11 +1,12 @@
 """Shared fixtures for the dea_ros.bag tests: deterministic messages of every rig type."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from dea_ros.bag import command_qos, sensor_data_qos
+from dea_ros.bag import MessageDefinitionStore, command_qos, sensor_data_qos
 
 F32 = np.float32
 
@@ -31,7 +32,7 @@ def _range(i: int) -> dict:
         "min_range": _f32(0.001),
         "max_range": _f32(0.05),
         "range": _f32(0.01 + 1e-5 * i),
-        "variance": _f32(1e-9 * (i % 7)),
+        # no "variance": Humble's sensor_msgs/Range has no such field (added in sensor_msgs 5.0, Iron+)
     }
 
 
@@ -120,6 +121,23 @@ def assert_fields_equal(expected, actual, where="msg"):
         assert actual == expected, f"{where}: {actual!r} != {expected!r}"
 
 
+def distro_has_type_hashes(type_name: str) -> bool:
+    """True when the installed definition of ``type_name`` comes with a type description.
+
+    rosidl generates ``<Type>.json`` (with the RIHS01 hash) next to the ``.msg`` from Iron on;
+    Humble installs none, and without ROS the vendored texts carry no hash either. Tests check
+    the hash where the distro under test has one and check its absence elsewhere.
+    """
+    _text, source = MessageDefinitionStore().msg_text(type_name)
+    return source not in ("vendored", "extra_definitions") and Path(source).with_suffix(".json").is_file()
+
+
+def installed_msg_text(type_name: str):
+    """The ``.msg`` text installed for the distro under test (``None`` without ROS messages)."""
+    text, source = MessageDefinitionStore().msg_text(type_name)
+    return None if source in ("vendored", "extra_definitions") else text
+
+
 @pytest.fixture
 def topics_spec():
     return TOPICS
@@ -133,3 +151,9 @@ def schedule():
 @pytest.fixture
 def fields_equal():
     return assert_fields_equal
+
+
+@pytest.fixture
+def has_type_hash():
+    """``has_type_hash(type_name) -> bool`` (see :func:`distro_has_type_hashes`)."""
+    return distro_has_type_hashes

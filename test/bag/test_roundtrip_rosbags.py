@@ -41,13 +41,15 @@ def _write_bag(path, topics_spec, schedule, **options):
 
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
-def test_rosbags_reads_every_message_field_by_field(tmp_path, topics_spec, schedule, fields_equal, compression):
+def test_rosbags_reads_every_message_field_by_field(tmp_path, topics_spec, schedule, fields_equal, compression,
+                                                    has_type_hash):
     bag = _write_bag(
         tmp_path / "run",
         topics_spec,
         schedule,
         compression=compression,
         chunk_size_bytes=4096,  # many chunks: exercises chunk and message indexes
+        rosbag2_format="jazzy",
         ros_distro="kilted",
         custom_data={"operator": "test", "membrane": "VHB4905"},
     )
@@ -82,11 +84,13 @@ def test_rosbags_reads_every_message_field_by_field(tmp_path, topics_spec, sched
             assert connection.ext.serialization_format == "cdr"
             assert [_from_rosbags_qos(q) for q in connection.ext.offered_qos_profiles] == [qos]
             assert connection.digest == MessageDefinitionStore().type_hash(type_name)
-            assert connection.digest.startswith("RIHS01_")
+            # RIHS01 hashes where the distro generates them (Iron+), none on Humble / without ROS
+            assert connection.digest.startswith("RIHS01_") == has_type_hash(type_name)
 
 
-def test_metadata_yaml_and_mcap_layout_match_rosbag2(tmp_path, topics_spec, schedule):
-    bag = _write_bag(tmp_path / "exp_042", topics_spec, schedule, ros_distro="kilted", custom_data={"k": "v"})
+def test_metadata_yaml_and_mcap_layout_match_rosbag2(tmp_path, topics_spec, schedule, has_type_hash):
+    bag = _write_bag(tmp_path / "exp_042", topics_spec, schedule, rosbag2_format="jazzy", ros_distro="kilted",
+                     custom_data={"k": "v"})
     document = yaml.safe_load((bag / "metadata.yaml").read_text())
     info = document["rosbag2_bagfile_information"]
     assert info["version"] == 9
@@ -114,7 +118,8 @@ def test_metadata_yaml_and_mcap_layout_match_rosbag2(tmp_path, topics_spec, sche
         metadata = entry["topic_metadata"]
         assert metadata["type"] == type_name
         assert metadata["serialization_format"] == "cdr"
-        assert metadata["type_description_hash"].startswith("RIHS01_")
+        assert metadata["type_description_hash"] == MessageDefinitionStore().type_hash(type_name)
+        assert metadata["type_description_hash"].startswith("RIHS01_") == has_type_hash(type_name)
         (profile,) = metadata["offered_qos_profiles"]  # v9: a YAML list with string enums
         assert list(profile) == [
             "history", "depth", "reliability", "durability", "deadline", "lifespan",
@@ -143,8 +148,11 @@ def test_metadata_yaml_and_mcap_layout_match_rosbag2(tmp_path, topics_spec, sche
         for channel in summary.channels.values():
             type_name, qos, _, _ = topics_spec[channel.topic]
             assert channel.message_encoding == "cdr"
-            assert set(channel.metadata) == {"offered_qos_profiles", "topic_type_hash"}
-            assert channel.metadata["topic_type_hash"] == store.type_hash(type_name)
+            if has_type_hash(type_name):
+                assert set(channel.metadata) == {"offered_qos_profiles", "topic_type_hash"}
+                assert channel.metadata["topic_type_hash"] == store.type_hash(type_name)
+            else:  # Humble / no ROS: no hash to store
+                assert set(channel.metadata) == {"offered_qos_profiles"}
             text = channel.metadata["offered_qos_profiles"]
             assert text.startswith("- history: keep_last\n  depth: ") and not text.endswith("\n")
             assert [_from_rosbags_qos(q) for q in rosbags_parse_qos(text)] == [qos]
@@ -155,7 +163,7 @@ def test_metadata_yaml_and_mcap_layout_match_rosbag2(tmp_path, topics_spec, sche
 
 
 def test_bag_reader_matches_what_was_written(tmp_path, topics_spec, schedule, fields_equal):
-    bag = _write_bag(tmp_path / "run", topics_spec, schedule)
+    bag = _write_bag(tmp_path / "run", topics_spec, schedule, rosbag2_format="jazzy")
     with BagReader(bag) as reader:
         assert not reader.truncated and reader.problems == []
         topics = reader.topics()
@@ -185,7 +193,8 @@ def test_single_mcap_file_is_readable_by_bag_reader(tmp_path, topics_spec, sched
         assert reader.files == [bag / "run_0.mcap"]
 
 
-def test_humble_format_is_version_5_with_integer_qos(tmp_path, topics_spec, schedule, fields_equal):
+def test_humble_format_is_version_5_with_integer_qos(tmp_path, monkeypatch, topics_spec, schedule, fields_equal):
+    monkeypatch.delenv("ROS_DISTRO", raising=False)  # recorded distro: the format's name
     bag = _write_bag(tmp_path / "humble", topics_spec, schedule, rosbag2_format="humble")
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert info["version"] == 5
@@ -201,8 +210,14 @@ def test_humble_format_is_version_5_with_integer_qos(tmp_path, topics_spec, sche
         assert profile["durability"] == 2 and profile["liveliness"] == 1
     with open(bag / "humble_0.mcap", "rb") as handle:
         reader = make_reader(handle)
-        assert all("topic_type_hash" not in c.metadata for c in reader.get_summary().channels.values())
-        assert [m.name for m in reader.iter_metadata()] == ["protocol"]  # no rosbag2 record in Humble
+        store = MessageDefinitionStore()
+        for channel in reader.get_summary().channels.values():  # hash kept for Jazzy (Humble ignores it)
+            schema_name = topics_spec[channel.topic][0]
+            assert channel.metadata.get("topic_type_hash", "") == store.type_hash(schema_name)
+        # Humble's storage plugin records only ROS_DISTRO (MCAPStorage::ensure_rosdistro_metadata_added)
+        records = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+        assert records[0] == ("rosbag2", {"ROS_DISTRO": "humble"})
+        assert [name for name, _ in records] == ["rosbag2", "protocol"]
     with RosbagsReader(bag) as reader:
         for connection in reader.connections:
             assert [_from_rosbags_qos(q) for q in connection.ext.offered_qos_profiles] == [
@@ -221,14 +236,14 @@ def test_humble_format_is_version_5_with_integer_qos(tmp_path, topics_spec, sche
         assert count == topics_spec["/dea/battery"][2]
 
 
-def test_vendored_definitions_give_identical_schemas_without_hashes(tmp_path, topics_spec, schedule, fields_equal):
+def test_vendored_definitions_give_readable_schemas_without_hashes(tmp_path, topics_spec, schedule, fields_equal):
     vendored = MessageDefinitionStore(search_prefixes=[])
-    bag = _write_bag(tmp_path / "vendored", topics_spec, schedule[:100], definitions=vendored)
-    installed = MessageDefinitionStore()
+    bag = _write_bag(tmp_path / "vendored", topics_spec, schedule[:100], definitions=vendored,
+                     rosbag2_format="jazzy")
     with open(bag / "vendored_0.mcap", "rb") as handle:
         summary = make_reader(handle).get_summary()
         for schema in summary.schemas.values():
-            assert schema.data.decode() == installed.full_definition(schema.name).text
+            assert schema.data.decode() == vendored.full_definition(schema.name).text
         assert all("topic_type_hash" not in c.metadata for c in summary.channels.values())
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert all(e["topic_metadata"]["type_description_hash"] == "" for e in info["topics_with_message_count"])

@@ -77,3 +77,47 @@ def rclpy_param(name, value):
 def test_bad_params_file_stops_with_a_clear_message(ros_context):
     with pytest.raises(SystemExit, match="params_file"):
         ModelNode(context=ros_context, parameter_overrides=[rclpy_param("params_file", "Z9")])
+
+
+def test_prediction_stamps_never_go_backwards_when_inputs_arrive_late(ros_context, spin_until):
+    """Timer extrapolations are stamped now; a voltage message older than one of them (late input)
+    updates the model but publishes nothing older: every stamp is later than the one before."""
+    node = ModelNode(context=ros_context, parameter_overrides=[
+        rclpy_param("params_file", "A2"), rclpy_param("rate_hz", 100.0), rclpy_param("input_timeout_s", 0.03)])
+    peer = Node("late_peer", context=ros_context)
+    pub = peer.create_publisher(BatteryState, "voltage", SENSOR_QOS)
+    got = []
+    peer.create_subscription(Range, "displacement_predicted", got.append, SENSOR_QOS)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(peer)
+    assert spin_until(ex, lambda: pub.get_subscription_count() > 0
+                      and peer.count_publishers("displacement_predicted") > 0)
+
+    def stamp_ns(msg):
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    t_first = node.now_ns()
+    pub.publish(make_voltage_state(0.0, t_first, True))
+    assert spin_until(ex, lambda: any(stamp_ns(m) == t_first for m in got))
+    # no input for a while: the timer extrapolates, stamped with the node's clock
+    assert spin_until(ex, lambda: len([m for m in got if stamp_ns(m) > t_first + 30_000_000]) >= 2)
+    last_before = max(stamp_ns(m) for m in got)
+    before_d = [m.range for m in got if stamp_ns(m) == last_before][0]
+    # a 2200 V input stamped before the last extrapolation arrives late
+    t_late = last_before - 20_000_000
+    pub.publish(make_voltage_state(2200.0, t_late, True))
+    assert spin_until(ex, lambda: node.superseded_inputs == 1)
+    assert not any(stamp_ns(m) == t_late for m in got)
+    assert node.voltage_V == 2200.0  # the model took the input all the same
+    # the next predictions (extrapolated from the late input's time) include the step
+    assert spin_until(ex, lambda: max(stamp_ns(m) for m in got) > last_before + 30_000_000)
+    assert got[-1].range > before_d + 1e-6
+    t_now = node.now_ns() + 500_000_000  # ahead of any extrapolation published while it is in flight
+    pub.publish(make_voltage_state(2200.0, t_now, True))
+    assert spin_until(ex, lambda: any(stamp_ns(m) == t_now for m in got))
+    stamps = [stamp_ns(m) for m in got]
+    assert len(stamps) >= 5 and all(b > a for a, b in zip(stamps, stamps[1:])), stamps
+    ex.shutdown()
+    node.destroy_node()
+    peer.destroy_node()
