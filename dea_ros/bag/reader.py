@@ -226,7 +226,7 @@ class BagReader:
         self._bag_dir = path
         metadata_path = path / METADATA_FILENAME
         if metadata_path.is_file():
-            info = load_metadata_yaml(metadata_path)
+            info = _load_metadata(metadata_path)
             if info["storage_identifier"] != "mcap":
                 raise BagError(
                     f"{metadata_path}: storage_identifier is {info['storage_identifier']!r}; only "
@@ -492,6 +492,18 @@ class BagReader:
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         self.close()
+
+
+def _load_metadata(path: Path) -> Dict[str, Any]:
+    """:func:`load_metadata_yaml`, with every way a damaged file can fail as :class:`BagError`."""
+    try:
+        return load_metadata_yaml(path)
+    except RecursionError:
+        raise BagError(f"{path} is nested too deeply to be a rosbag2 metadata file; if the .mcap file is "
+                       "intact, delete it and run 'dea-ros bag recover' to regenerate it") from None
+    except UnicodeDecodeError:
+        raise BagError(f"{path} is not text (damaged); if the .mcap file is intact, delete it and run "
+                       "'dea-ros bag recover' to regenerate it") from None
 
 
 def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:

@@ -96,8 +96,8 @@ def _storage_files(path: Path) -> List[Path]:
         try:
             info = load_metadata_yaml(metadata_path)
             files = [path / Path(p).name for p in info["relative_file_paths"] if (path / Path(p).name).is_file()]
-        except BagError:
-            files = []  # regenerated below
+        except (BagError, RecursionError, UnicodeDecodeError):
+            files = []  # damaged: regenerated below
     for candidate in sorted(path.glob("*.mcap")):
         if candidate not in files:
             files.append(candidate)

@@ -108,6 +108,9 @@ class IdentifierNode(Node):
             self.segments = self.protocol.schedule(self.max_voltage_V or None)
         except ProtocolError as exc:
             raise SystemExit(f"identifier_node: parameter 'protocol': {exc}") from None
+        except (RecursionError, UnicodeDecodeError) as exc:
+            raise SystemExit(f"identifier_node: parameter 'protocol': {self.protocol_ref} is not a protocol "
+                             f"YAML ({type(exc).__name__})") from None
         self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
         self.bag_dir = self.run_dir / "bag"
         self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
