@@ -12,9 +12,17 @@ __all__ = ["register"]
 
 
 def cmd_bag_info(args) -> int:
+    import sys
+    import warnings
+
     from . import BagReader
 
-    with BagReader(args.bag) as bag:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bag = BagReader(args.bag)
+    for warning in caught:
+        print(f"dea-ros bag info: warning: {warning.message}", file=sys.stderr)
+    with bag:
         topics = bag.topics()
         meta = bag.metadata()
         out = {

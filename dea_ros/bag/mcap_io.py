@@ -639,8 +639,11 @@ def scan_mcap(
         _scan_records(handle, scan, load_messages, verify, salvage)
         scan.complete = scan.data_end_seen and has_valid_footer(path)
         if scan.data_end_seen and not scan.complete:
-            scan.problem = "summary section or footer missing/damaged after Data End"
-            scan.damage.append(f"{path}: {scan.problem}")
+            if _ends_with_magic(handle, scan.file_size):  # an end is there, but not a valid footer
+                scan.problem = "summary section or footer damaged after Data End"
+                scan.damage.append(f"{path}: {scan.problem}")
+            else:  # cut short after the data: the summary is simply missing (rebuilt by recover)
+                scan.problem = f"file ends at offset {scan.file_size} inside the summary section (no footer)"
         elif not scan.data_end_seen and has_valid_footer(path):
             # The file has its end (footer + magic): stopping early is damage, not truncation.
             scan.data_lost = True
@@ -649,6 +652,13 @@ def scan_mcap(
         if verify and scan.complete and scan.data_end_offset is not None:
             _verify_summary(handle, scan)
     return scan
+
+
+def _ends_with_magic(handle, file_size: int) -> bool:
+    if file_size < 2 * len(MCAP_MAGIC):
+        return False
+    handle.seek(file_size - len(MCAP_MAGIC))
+    return handle.read(len(MCAP_MAGIC)) == MCAP_MAGIC
 
 
 def _plausible_record_at(handle, position: int, file_size: int) -> bool:
@@ -888,7 +898,7 @@ def _verify_summary(handle, scan: McapScan) -> None:
     for offset in records[Opcode.SUMMARY_OFFSET]:
         if groups.get(offset.group_opcode) != (offset.group_start, offset.group_length):
             problems.append(f"summary offset of the {_opcode_name(offset.group_opcode)} group is wrong")
-    scan.damage.extend(f"{path}: {problem}" for problem in problems)
+    scan.damage.extend(f"{path}: summary section at offset {start}: {problem}" for problem in problems)
 
 
 def finish_in_place(

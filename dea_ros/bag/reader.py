@@ -25,7 +25,7 @@ from .mcap_io import McapScan, has_valid_footer, scan_mcap
 from .metadata import METADATA_FILENAME, load_metadata_yaml
 from .qos import QosProfile, parse_qos_profiles
 
-__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage"]
+__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage", "message_decoder"]
 
 
 class TopicInfo(NamedTuple):
@@ -443,11 +443,8 @@ class BagReader:
                 f"{channel.message_encoding!r}, schema encoding {getattr(schema, 'encoding', None)!r}; "
                 "only 'cdr' messages with 'ros2msg' schemas are supported (use raw_messages())"
             )
-        from mcap_ros2._dynamic import generate_dynamic
-
         try:
-            decoders = generate_dynamic(schema.name, schema.data.decode("utf-8"))
-            decoder = decoders[schema.name]
+            decoder = message_decoder(schema.name, schema.data)
         except Exception as exc:
             raise BagError(
                 f"cannot parse the message definition of {schema.name} (topic {channel.topic}) in "
@@ -476,6 +473,12 @@ class BagReader:
                 problems.append(str(exc))
                 continue
             problems.extend(scan.damage)
+            for channel in scan.channels.values():
+                try:
+                    parse_qos_profiles(channel.metadata.get("offered_qos_profiles", ""))
+                except ValueError as exc:
+                    problems.append(f"{mcap_file.path}: channel {channel.id} ({channel.topic}): "
+                                    f"offered_qos_profiles unreadable ({exc})")
             if decode:
                 problems.extend(_decode_problems(scan, max_decode_errors))
         problems.extend(self._metadata_problems)
@@ -506,10 +509,20 @@ def _load_metadata(path: Path) -> Dict[str, Any]:
                        "'dea-ros bag recover' to regenerate it") from None
 
 
-def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
-    """Decode every message of a scan with its channel's schema; the failures, as text."""
+def message_decoder(type_name: str, schema_data: bytes) -> Callable[[bytes], Any]:
+    """mcap_ros2's dynamic CDR decoder for a ``ros2msg`` schema (its parser's prints silenced)."""
+    import contextlib
+    import io
+
     from mcap_ros2._dynamic import generate_dynamic
 
+    text = schema_data.decode("utf-8")
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return generate_dynamic(type_name, text)[type_name]
+
+
+def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
+    """Decode every message of a scan with its channel's schema; the failures, as text."""
     decoders: Dict[int, Optional[Callable[[bytes], Any]]] = {}
     problems: List[str] = []
     failures = 0
@@ -526,7 +539,7 @@ def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
             decoder = None
             if channel.message_encoding == "cdr" and schema is not None and schema.encoding == "ros2msg":
                 try:
-                    decoder = generate_dynamic(schema.name, schema.data.decode("utf-8"))[schema.name]
+                    decoder = message_decoder(schema.name, schema.data)
                 except Exception as exc:  # noqa: BLE001 - a damaged schema text
                     problems.append(
                         f"{scan.path}: schema {schema.id} ({schema.name}) of topic {channel.topic} cannot be "

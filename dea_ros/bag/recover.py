@@ -46,7 +46,8 @@ from .metadata import (
     load_metadata_yaml,
     metadata_version_for_format,
 )
-from .qos import parse_qos_profiles
+from .qos import parse_qos_profiles, serialize_qos_profiles
+from .reader import message_decoder
 from .writer import ROSBAG2_METADATA_RECORD, _write_text_atomic
 
 __all__ = ["recover_bag", "RecoveryReport"]
@@ -181,6 +182,7 @@ def recover_bag(
             )
         if scan.complete and not scan.damage:
             continue  # intact: left untouched
+        damage.extend(_repair_definitions(scan, _recorded_qos(bag_dir)))
         scans[file_path] = scan
         dropped += scan.file_size - scan.valid_end if not scan.complete else 0
         problems.append(f"{file_path}: {scan.problem or 'index or summary damaged'}")
@@ -271,6 +273,73 @@ def recover_bag(
         damage=damage,
         in_place=finished_in_place,
     )
+
+
+def _recorded_qos(bag_dir: Path) -> Dict[str, Any]:
+    """``{topic: [QosProfile]}`` from the bag's metadata.yaml, if it is readable."""
+    try:
+        info = load_metadata_yaml(bag_dir / METADATA_FILENAME)
+    except (BagError, RecursionError, UnicodeDecodeError, OSError):
+        return {}
+    return {name: list(t.offered_qos_profiles) for name, t in info["topics"].items() if t.offered_qos_profiles}
+
+
+def _repair_definitions(scan, recorded_qos: Mapping[str, Any]) -> List[str]:
+    """Make a damaged file's schemas and channels usable by every reader; what was done, as text.
+
+    A schema text that no longer parses is replaced by the installed/vendored definition of its
+    type (if known), else its channels and their messages are dropped; a channel whose
+    ``offered_qos_profiles`` no longer parses gets the topic's QoS from metadata.yaml, else none.
+    """
+    from mcap.records import Channel, Schema
+
+    from .definitions import MessageDefinitionStore
+
+    notes: List[str] = []
+    store = None
+    unusable = set()
+    for schema_id, schema in list(scan.schemas.items()):
+        if schema.encoding != "ros2msg":
+            continue
+        try:
+            message_decoder(schema.name, schema.data)
+            continue
+        except Exception:  # noqa: BLE001 - damaged text
+            pass
+        try:
+            store = store or MessageDefinitionStore()
+            definition = store.full_definition(schema.name)
+            message_decoder(schema.name, definition.text.encode("utf-8"))
+        except Exception:  # noqa: BLE001 - unknown or damaged type name too
+            unusable.add(schema_id)
+            notes.append(f"{scan.path}: schema {schema_id} ({schema.name!r}) is damaged and its type unknown: "
+                         "its topics are dropped")
+            continue
+        scan.schemas[schema_id] = Schema(id=schema_id, name=schema.name, encoding=schema.encoding,
+                                         data=definition.text.encode("utf-8"))
+        notes.append(f"{scan.path}: schema {schema_id} ({schema.name}) was damaged: replaced by the "
+                     "installed definition")
+    for channel_id, channel in list(scan.channels.items()):
+        if channel.schema_id in unusable:
+            del scan.channels[channel_id]
+            continue
+        text = channel.metadata.get("offered_qos_profiles", "")
+        try:
+            parse_qos_profiles(text)
+            continue
+        except ValueError:
+            pass
+        metadata = {k: v for k, v in channel.metadata.items() if k != "offered_qos_profiles"}
+        profiles = recorded_qos.get(channel.topic)
+        if profiles:
+            version = 5 if _qos_uses_integers(text) else 9
+            metadata["offered_qos_profiles"] = serialize_qos_profiles(profiles, version)
+        scan.channels[channel_id] = Channel(id=channel_id, topic=channel.topic,
+                                            message_encoding=channel.message_encoding,
+                                            schema_id=channel.schema_id, metadata=metadata)
+        notes.append(f"{scan.path}: channel {channel_id} ({channel.topic}): offered_qos_profiles damaged, "
+                     + ("taken from metadata.yaml" if profiles else "dropped"))
+    return notes
 
 
 def _rewrite(file_path: Path, scan, finishing, keep_original: bool) -> None:
