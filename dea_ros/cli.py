@@ -33,6 +33,8 @@ class CliError(Exception):
 MAX_SIMULATE_DURATION_S = 1000.0
 #: ``simulate`` output samples (duration x rate) limit: 5 columns of float64 = 80 MB in memory.
 MAX_SIMULATE_SAMPLES = 2_000_000
+#: ``simulate --method``: scipy's solve_ivp integrators.
+SOLVE_IVP_METHODS = ("DOP853", "RK45", "RK23", "Radau", "BDF", "LSODA")
 #: ``sweep --points`` limit: each point is a harmonic-balance solve (and a Floquet analysis).
 MAX_SWEEP_POINTS = 5000
 
@@ -150,6 +152,8 @@ def cmd_simulate(args) -> int:
     if duration * rate > MAX_SIMULATE_SAMPLES:
         raise CliError(f"--duration x --rate: {duration * rate:.3g} output samples exceed the limit of "
                        f"{MAX_SIMULATE_SAMPLES:.0e} (80 MB of results in memory); lower --rate")
+    if args.method not in SOLVE_IVP_METHODS:
+        raise CliError(f"--method: {args.method!r} is not a solve_ivp method; choose one of {SOLVE_IVP_METHODS}")
     check_output_file("--out", args.out)
     check_output_file("--plot", args.plot)
     if args.input_csv:
