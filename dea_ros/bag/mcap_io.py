@@ -510,13 +510,22 @@ class McapScan:
         return bool(self.damage)
 
     def _count(self, channel_id: int, log_time: int) -> None:
-        if self.message_count == 0:
-            self.message_start_time = self.message_end_time = log_time
-        else:
-            self.message_start_time = min(self.message_start_time, log_time)
-            self.message_end_time = max(self.message_end_time, log_time)
-        self.message_count += 1
-        self.channel_counts[channel_id] = self.channel_counts.get(channel_id, 0) + 1
+        self._count_entries({channel_id: [(log_time, 0)]})
+
+    def _count_entries(self, entries: Mapping[int, List[Tuple[int, int]]]) -> None:
+        """Add the messages ``{channel: [(log_time, offset)]}`` to the counts and time range."""
+        for channel_id, pairs in entries.items():
+            if not pairs:
+                continue
+            times = [t for t, _ in pairs]
+            low, high = min(times), max(times)
+            if self.message_count == 0:
+                self.message_start_time, self.message_end_time = low, high
+            else:
+                self.message_start_time = min(self.message_start_time, low)
+                self.message_end_time = max(self.message_end_time, high)
+            self.message_count += len(pairs)
+            self.channel_counts[channel_id] = self.channel_counts.get(channel_id, 0) + len(pairs)
 
 
 def has_valid_footer(path: Union[str, Path]) -> bool:
@@ -536,6 +545,14 @@ def has_valid_footer(path: Union[str, Path]) -> bool:
 
 def _parse(record_class, body: bytes):
     return record_class.read(ReadDataStream(io.BytesIO(body)))
+
+
+def _parse_message_index(body: bytes) -> MessageIndex:
+    """A Message Index record (fast: one unpack for all entries)."""
+    channel_id, length = struct.unpack_from("<HI", body, 0)
+    if length % 16 or 6 + length > len(body):
+        raise ValueError(f"Message Index entries of {length} bytes in a record of {len(body)}")
+    return MessageIndex(channel_id, list(struct.iter_unpack("<QQ", body[6 : 6 + length])))
 
 
 def _opcode_name(opcode: int) -> str:
@@ -562,7 +579,7 @@ def _decompress(compression: str, data: bytes, size: int) -> bytes:
 
 
 def _chunk_records(
-    chunk: Chunk,
+    chunk: Chunk, load_messages: bool = True
 ) -> Tuple[List[Schema], List[Channel], List[Message], Dict[int, List[Tuple[int, int]]]]:
     """Decompress and CRC-check a chunk; its records and ``{channel: [(log_time, offset)]}``."""
     raw = _decompress(chunk.compression, chunk.data, chunk.uncompressed_size)
@@ -586,7 +603,8 @@ def _chunk_records(
             if length < 22:
                 raise ValueError(f"Message record of {length} bytes inside the chunk (at least 22 expected)")
             channel_id, sequence, log_time, publish_time = struct.unpack_from("<HIQQ", body, 0)
-            messages.append(Message(channel_id, log_time, body[22:], publish_time, sequence))
+            if load_messages:
+                messages.append(Message(channel_id, log_time, body[22:], publish_time, sequence))
             entries[channel_id].append((log_time, position))
         elif opcode == Opcode.SCHEMA:
             schemas.append(_parse(Schema, body))
@@ -595,8 +613,8 @@ def _chunk_records(
         elif opcode not in _KNOWN_OPCODES:
             raise ValueError(f"unknown record opcode {opcode:#04x} inside the chunk")
         position += 9 + length
-    if messages:
-        times = [m.log_time for m in messages]
+    if entries:
+        times = [t for pairs in entries.values() for t, _ in pairs]
         if min(times) != chunk.message_start_time or max(times) != chunk.message_end_time:
             raise ValueError(
                 f"chunk header says messages from {chunk.message_start_time} to {chunk.message_end_time} ns, "
@@ -719,13 +737,12 @@ def _scan_records(handle, scan: McapScan, load_messages: bool, verify: bool, sal
                     scan.message_offsets.append(position)
             elif opcode == Opcode.CHUNK:
                 chunk = _parse(Chunk, body)
-                schemas, channels, messages, entries = _chunk_records(chunk)
+                schemas, channels, messages, entries = _chunk_records(chunk, load_messages)
                 for schema in schemas:
                     scan.schemas[schema.id] = schema
                 for channel in channels:
                     scan.channels[channel.id] = channel
-                for message in messages:
-                    scan._count(message.channel_id, message.log_time)
+                scan._count_entries(entries)
                 if load_messages:
                     scan.messages.extend(messages)
                     scan.message_offsets.extend([position] * len(messages))
@@ -742,7 +759,7 @@ def _scan_records(handle, scan: McapScan, load_messages: bool, verify: bool, sal
                 scan.chunks.append(info)
                 index_target = info
             elif opcode == Opcode.MESSAGE_INDEX:
-                index = _parse(MessageIndex, body)
+                index = _parse_message_index(body)
                 if follows_chunk is not None:
                     if index.channel_id in follows_chunk.index_offsets:
                         raise ValueError(f"second Message Index for channel {index.channel_id}")
