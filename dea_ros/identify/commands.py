@@ -100,6 +100,18 @@ def _check_harmonics(value) -> None:
         raise _UsageError(str(exc)) from None
 
 
+def _check_membrane(name_or_path) -> None:
+    """``--membrane``: a preset or a parameters YAML that loads (plausibility included), before any work."""
+    from ..model.parameters import load_parameters
+
+    try:
+        load_parameters(name_or_path)
+    except (RecursionError, UnicodeDecodeError, OSError) as exc:
+        raise _UsageError(_input_problem("--membrane", name_or_path, exc)) from None
+    except ValueError as exc:  # ParameterError and the plausibility checks
+        raise _UsageError(f"--membrane {name_or_path}: {exc}") from None
+
+
 def _parse_floats(option: str, text: str) -> list:
     try:
         values = [float(x) for x in text.split(",")]
@@ -156,6 +168,8 @@ def cmd_identify(args) -> int:
     try:
         _check_out_dir(args.out)
         _check_harmonics(args.harmonics)
+        if args.membrane:
+            _check_membrane(args.membrane)
         if args.fit_frequencies:
             fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
                                                                                    args.fit_frequencies)
