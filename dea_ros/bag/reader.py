@@ -540,15 +540,14 @@ def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
             if channel.message_encoding == "cdr" and schema is not None and schema.encoding == "ros2msg":
                 try:
                     decoder = message_decoder(schema.name, schema.data)
-                except Exception as exc:  # noqa: BLE001 - a damaged schema text
-                    problems.append(
-                        f"{scan.path}: schema {schema.id} ({schema.name}) of topic {channel.topic} cannot be "
-                        f"parsed: {type(exc).__name__}: {exc}"
-                    )
+                except Exception:  # noqa: BLE001
+                    # not necessarily damage (e.g. service event schemas the decoder does not parse);
+                    # damage to a schema's bytes is caught by the data-section CRC
+                    decoder = None
             decoders[message.channel_id] = decoder
         decoder = decoders[message.channel_id]
         if decoder is None:
-            continue  # not CDR/ros2msg (listed by the reader) or a damaged schema (listed above)
+            continue  # not CDR/ros2msg, or a schema the decoder cannot parse: not checked
         try:
             decoder(message.data)
         except Exception as exc:  # noqa: BLE001 - any decoder failure is corruption
