@@ -5,14 +5,18 @@ Subcommands: ``equilibrium``, ``simulate``, ``sweep`` (model and solvers);
 ROS 2); ``rig`` (the whole rig on mock hardware). ``dea-ros CMD --help`` for each.
 Every command takes ``--membrane NAME`` (LP1, A1, A2) or ``--params FILE``,
 prints readable text by default and JSON with ``--json``. Errors exit with code
-2 and a message naming the problem.
+2 and a message naming the file, field or option and the fix; no traceback (an
+unexpected exception is reported as an internal error with exit code 1, its
+traceback only with ``DEA_ROS_DEBUG=1``).
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import sys
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +26,43 @@ __all__ = ["main", "build_parser"]
 
 class CliError(Exception):
     """A user-facing error: printed without a traceback, exit code 2."""
+
+
+#: ``simulate --duration`` limit, s: longer than any protocol (the paper's takes 200 s); every
+#: simulated second costs up to a second of CPU near resonance.
+MAX_SIMULATE_DURATION_S = 1000.0
+#: ``simulate`` output samples (duration x rate) limit: 5 columns of float64 = 80 MB in memory.
+MAX_SIMULATE_SAMPLES = 2_000_000
+#: ``simulate --method``: scipy's solve_ivp integrators.
+SOLVE_IVP_METHODS = ("DOP853", "RK45", "RK23", "Radau", "BDF", "LSODA")
+#: ``sweep --points`` limit: each point is a harmonic-balance solve (and a Floquet analysis).
+MAX_SWEEP_POINTS = 5000
+
+
+def read_input_file(option: str, path, loader):
+    """``loader(path)`` with the errors of a bad input file turned into a CliError naming it."""
+    try:
+        return loader(path)
+    except RecursionError:
+        raise CliError(f"{option} {path}: nested too deeply to be a dea_ros input (a YAML of "
+                       "thousands of nested brackets?)") from None
+    except UnicodeDecodeError:
+        raise CliError(f"{option} {path}: not a text file (binary content); give the YAML/CSV file") from None
+    except IsADirectoryError:
+        raise CliError(f"{option} {path}: is a directory, a file is needed") from None
+    except PermissionError:
+        raise CliError(f"{option} {path}: permission denied") from None
+
+
+def check_output_file(option: str, path) -> None:
+    """Fail before the work when an output file cannot be written (missing folder, a directory)."""
+    if path is None:
+        return
+    p = Path(path)
+    if p.is_dir():
+        raise CliError(f"{option} {path}: is a directory; give a file name")
+    if not p.parent.is_dir():
+        raise CliError(f"{option} {path}: folder {p.parent} does not exist; create it first")
 
 
 # ------------------------------------------------------------------ helpers
@@ -35,7 +76,8 @@ def add_membrane_args(parser: argparse.ArgumentParser) -> None:
 def load_membrane(args):
     from .model import load_parameters
 
-    params = load_parameters(args.params if args.params else (args.membrane or "A2"))
+    option = "--params" if args.params else "--membrane"
+    params = read_input_file(option, args.params or args.membrane or "A2", load_parameters)
     if getattr(args, "mass", None) is not None:
         params = params.replace(mass_kg=args.mass)
     return params
@@ -104,9 +146,22 @@ def cmd_simulate(args) -> int:
     params = load_membrane(args)
     duration = finite("--duration", args.duration, positive=True)
     rate = finite("--rate", args.rate, positive=True)
+    if duration > MAX_SIMULATE_DURATION_S:
+        raise CliError(f"--duration: {duration:g} s is beyond the {MAX_SIMULATE_DURATION_S:g} s limit (longer than "
+                       "any protocol; a simulated second can cost a second of CPU): simulate in pieces")
+    if duration * rate > MAX_SIMULATE_SAMPLES:
+        raise CliError(f"--duration x --rate: {duration * rate:.3g} output samples exceed the limit of "
+                       f"{MAX_SIMULATE_SAMPLES:.0e} (80 MB of results in memory); lower --rate")
+    if args.method not in SOLVE_IVP_METHODS:
+        raise CliError(f"--method: {args.method!r} is not a solve_ivp method; choose one of {SOLVE_IVP_METHODS}")
+    check_output_file("--out", args.out)
+    check_output_file("--plot", args.plot)
     if args.input_csv:
         data = load_voltage_csv(args.input_csv)
-        signal = SampledVoltage(data[0], data[1], hold=args.hold)
+        try:
+            signal = SampledVoltage(data[0], data[1], hold=args.hold)
+        except ValueError as exc:
+            raise CliError(f"--input-csv {args.input_csv}: {exc}") from None
         label = f"voltage from {args.input_csv}"
     elif args.sine is not None:
         signal = SineVoltage(finite("--sine", args.sine), finite("--frequency", args.frequency, True),
@@ -161,21 +216,29 @@ def cmd_simulate(args) -> int:
 
 
 def load_voltage_csv(path: str):
+    """``time_s, voltage_V`` columns of a CSV, checked: numbers, volts (not kV), not negative."""
+    from .solvers.inputs import check_recorded_voltage
+
     p = Path(path)
     if not p.is_file():
         raise CliError(f"--input-csv: no such file {path}")
     try:
-        data = np.genfromtxt(p, delimiter=",", names=True)
-    except Exception as exc:  # noqa: BLE001
-        raise CliError(f"{path}: not a CSV with a header row ({exc})") from None
+        data = np.genfromtxt(p, delimiter=",", names=True, ndmin=1)
+    except Exception as exc:  # noqa: BLE001 - any parse failure (binary, ragged rows, ...)
+        raise CliError(f"--input-csv {path}: not a CSV with a header row ({type(exc).__name__}: {exc})") from None
     names = data.dtype.names or ()
     for col in ("time_s", "voltage_V"):
         if col not in names:
-            raise CliError(f"{path}: needs columns time_s and voltage_V (SI units), found {list(names)}")
-    t, u = np.asarray(data["time_s"], float), np.asarray(data["voltage_V"], float)
+            raise CliError(f"--input-csv {path}: needs columns time_s and voltage_V (SI units: s and V), "
+                           f"found {list(names)}")
+    t, u = np.atleast_1d(np.asarray(data["time_s"], float)), np.atleast_1d(np.asarray(data["voltage_V"], float))
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(u))):
         bad = int(np.nonzero(~(np.isfinite(t) & np.isfinite(u)))[0][0]) + 2
-        raise CliError(f"{path}: NaN or empty value in time_s/voltage_V at line {bad}")
+        raise CliError(f"--input-csv {path}: line {bad}: time_s/voltage_V is not a number (or is empty)")
+    try:
+        check_recorded_voltage(u, f"--input-csv {path}: column voltage_V")
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
     return t, u
 
 
@@ -189,10 +252,16 @@ def cmd_sweep(args) -> int:
     fmax = finite("--fmax", args.fmax, True)
     if fmax <= fmin:
         raise CliError(f"--fmax ({fmax}) must be larger than --fmin ({fmin})")
-    if args.points < 1:
-        raise CliError("--points: must be >= 1")
-    if args.harmonics < 1:
-        raise CliError("--harmonics: must be >= 1")
+    if not 1 <= args.points <= MAX_SWEEP_POINTS:
+        raise CliError(f"--points: must be from 1 to {MAX_SWEEP_POINTS} (each point is a harmonic-balance "
+                       f"solve), got {args.points}")
+    from .solvers.inputs import check_harmonics
+
+    try:
+        check_harmonics(args.harmonics, "--harmonics")
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    check_output_file("--plot", args.plot)
     freqs = (np.geomspace(fmin, fmax, args.points) if args.spacing == "log"
              else np.linspace(fmin, fmax, args.points))
     inp = SinePeriodic(finite("--amplitude", args.amplitude), fmin, offset_V=finite("--offset", args.offset))
@@ -343,12 +412,30 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except (CliError, ParameterError, NoEquilibriumError, HarmonicBalanceError, ValueError,
-            FileNotFoundError, _bag_error()) as exc:
+            _bag_error()) as exc:
         print(f"dea-ros {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a file that cannot be read or written: name it
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"dea-ros {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except RecursionError:
+        print(f"dea-ros {args.command}: error: an input file is nested too deeply (a YAML of thousands of "
+              "nested brackets?)", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print(f"dea-ros {args.command}: error: out of memory; lower the sizes given (--points, --rate, "
+              "--duration, --harmonics)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"dea-ros {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - a bug: no traceback for the user unless asked
+        if os.environ.get("DEA_ROS_DEBUG"):
+            traceback.print_exc()
+        print(f"dea-ros {args.command}: internal error ({type(exc).__name__}: {exc}); this is a bug, please "
+              "report it with the command line (DEA_ROS_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -110,6 +110,12 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
 
 
 def cmd_replay(args) -> int:
+    import math
+
+    for option, value, low, high in (("--rate", args.rate, 1e-3, 1e3), ("--start-offset", args.start_offset, 0.0, 1e7),
+                                     ("--delay", args.delay, 0.0, 3600.0), ("--max-gap", args.max_gap, 1e-3, 1e7)):
+        if not (math.isfinite(value) and low <= value <= high):
+            raise ValueError(f"{option}: must be from {low:g} to {high:g}, got {value:g}")
     n = replay(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, start_offset_s=args.start_offset,
                publish_clock=args.clock, max_gap_s=args.max_gap, delay_s=args.delay)
     print(f"replayed {n} messages from {args.bag}")

@@ -73,6 +73,69 @@ def test_bad_input_exits_2_with_a_message(capsys, argv, message):
     assert message in err
 
 
+@pytest.fixture
+def bad_files(tmp_path):
+    """Slips a user can make with input files."""
+    files = {
+        "deep": ("a: " + "[" * 600 + "]" * 600 + "\n").encode(),
+        "binary": bytes(range(256)) * 20,
+        "text_values": b"time_s,voltage_V\n0,0\n0.5,abc\n1,2500\n",
+        "kilovolts": b"time_s,voltage_V\n0,0\n0.5,2.5\n1,2.2\n",
+        "negative": b"time_s,voltage_V\n0,0\n0.5,-2500\n1,2500\n",
+        "time_backwards": b"time_s,voltage_V\n0,0\n0.5,2500\n0.2,2500\n",
+        "existing": b"x",
+    }
+    paths = {}
+    for name, content in files.items():
+        paths[name] = tmp_path / (f"{name}.yaml" if name == "deep" else f"{name}.csv")
+        paths[name].write_bytes(content)
+    return paths
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["equilibrium", "--params", "{deep}"], "--params {deep}: nested too deeply"),
+        (["equilibrium", "--params", "{binary}"], "--params {binary}: not a text file"),
+        (["simulate", "--input-csv", "{binary}"], "--input-csv {binary}: not a CSV"),
+        (["simulate", "--input-csv", "{text_values}"], "--input-csv {text_values}: line 3"),
+        (["simulate", "--input-csv", "{kilovolts}"], "this looks like kV"),
+        (["simulate", "--input-csv", "{negative}"], "negative voltage -2500 V"),
+        (["simulate", "--input-csv", "{time_backwards}"], "--input-csv {time_backwards}: time_s"),
+        (["simulate", "--duration", "1e9"], "--duration: 1e+09 s is beyond the 1000 s limit"),
+        (["simulate", "--duration", "900", "--rate", "1e5"], "output samples exceed the limit"),
+        (["simulate", "--out", "{existing}/x.csv"], "--out {existing}/x.csv: folder"),
+        (["sweep", "--harmonics", "100000"], "--harmonics: must be an integer from 1 to 32"),
+        (["sweep", "--points", "10000000"], "--points: must be from 1 to"),
+        (["identify", "{existing}", "--out", "{existing}"], "--out {existing}: exists and is not a folder"),
+        (["identify", "{existing}", "--out", "{existing}.d", "--harmonics", "0"], "--harmonics"),
+        (["identify", "{existing}", "--out", "{existing}.d", "--harmonics", "100000"], "--harmonics"),
+        (["identify", "{deep}", "--out", "{existing}.d"], "nested too deeply"),
+        (["synth", "--membrane", "A1", "--noise", "1e-6", "--out", "{existing}"], "--out {existing}"),
+        (["synth", "--params", "{deep}", "--noise", "1e-6", "--out", "{existing}.d"], "nested too deeply"),
+        (["synth", "--membrane", "A1", "--noise", "1e-6", "--out", "{existing}.d", "--frequencies", "a,b"],
+         "--frequencies"),
+    ],
+)
+def test_every_error_exits_2_naming_the_file_or_option(capsys, bad_files, argv, message):
+    names = {k: str(v) for k, v in bad_files.items()}
+    code, _, err = run(capsys, *[a.format(**names) for a in argv])
+    assert code == 2, err
+    assert message.format(**names) in err
+    assert "Traceback" not in err and "internal error" not in err
+
+
+def test_experiment_folder_with_a_binary_csv_exits_2_naming_it(capsys, tmp_path):
+    folder = tmp_path / "exp"
+    folder.mkdir()
+    (folder / "manifest.yaml").write_text(
+        "format: dea_ros.experiments/1\nmembrane: A1\nmass_kg: 0.003\nexperiments:\n"
+        "- kind: static\n  file: static.csv\n")
+    (folder / "static.csv").write_bytes(bytes(range(256)) * 10)
+    code, _, err = run(capsys, "identify", str(folder), "--out", str(tmp_path / "fit"), "--quiet")
+    assert code == 2 and str(folder / "static.csv") in err and "not text" in err
+
+
 def test_console_script_entry_point():
     out = subprocess.run([sys.executable, "-m", "dea_ros.cli", "equilibrium", "--json"],
                          capture_output=True, text=True, check=True)

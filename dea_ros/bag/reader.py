@@ -6,6 +6,12 @@ complete chunk (:func:`dea_ros.bag.mcap_io.scan_mcap`), with a :class:`BagTrunca
 ``reader.truncated == True``. Messages are decoded with mcap_ros2's dynamic CDR decoder from the
 ``ros2msg`` schema stored in the bag, so no ROS message packages are needed; decoded messages
 have attribute access (``msg.header.stamp.sec``, ``msg.range``).
+
+Corruption (flipped bytes, a damaged chunk, a summary that disagrees with the data) never
+escapes as a decoder's KeyError or zstd error: reading raises :class:`BagError` naming the file
+and the damaged record. :meth:`BagReader.verify` checks a whole bag up front (chunk CRCs,
+decompression, the data-section and summary CRCs, indexes against the data, and that every
+message decodes with its schema), as ``dea-ros bag info`` does.
 """
 
 import heapq
@@ -19,7 +25,7 @@ from .mcap_io import McapScan, has_valid_footer, scan_mcap
 from .metadata import METADATA_FILENAME, load_metadata_yaml
 from .qos import QosProfile, parse_qos_profiles
 
-__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage"]
+__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage", "message_decoder"]
 
 
 class TopicInfo(NamedTuple):
@@ -47,12 +53,17 @@ class RawBagMessage(NamedTuple):
     data: bytes
 
 
+class _NoSummary(Exception):
+    """A complete MCAP file without summary section."""
+
+
 class _McapFile:
     """One storage file: summary-based when complete, scan-based when truncated."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.truncated = False
+        self.damaged = False
         self.problem = ""
         self._scan: Optional[McapScan] = None
         self._handle = None
@@ -62,10 +73,12 @@ class _McapFile:
                 from mcap.reader import SeekingReader
 
                 self._handle = open(path, "rb")
-                self._reader = SeekingReader(self._handle)
+                self._reader = SeekingReader(self._handle, validate_crcs=True)
                 header = self._reader.get_header()
                 summary = self._reader.get_summary()
-                if summary is None or summary.statistics is None:
+                if summary is None:  # no summary section (allowed by MCAP): read linearly
+                    raise _NoSummary()
+                if summary.statistics is None:
                     raise ValueError("no summary statistics")
                 self.profile = header.profile
                 self.schemas = dict(summary.schemas)
@@ -80,6 +93,8 @@ class _McapFile:
             except BagError:
                 self.close()
                 raise
+            except _NoSummary:
+                self.close()
             except Exception as exc:  # damaged summary: fall back to a linear scan
                 self.close()
                 self.problem = f"summary unreadable ({type(exc).__name__}: {exc}); scanned linearly"
@@ -91,8 +106,11 @@ class _McapFile:
             )
         self._scan = scan
         self.truncated = scan.truncated
-        if scan.problem:
-            self.problem = (self.problem + "; " if self.problem else "") + scan.problem
+        self.damaged = scan.damaged or bool(self.problem)
+        details = [scan.problem] if scan.problem else []
+        details += [d.replace(f"{path}: ", "", 1) for d in scan.damage if scan.problem not in d]
+        if details:
+            self.problem = "; ".join(([self.problem] if self.problem else []) + details)
         self.profile = scan.header.profile
         self.schemas = dict(scan.schemas)
         self.channels = dict(scan.channels)
@@ -130,10 +148,28 @@ class _McapFile:
             return
         if self._reader is None:
             raise BagError(f"{self.path} is closed")
-        for _schema, channel, message in self._reader.iter_messages(
-            topics=sorted(topics) if topics is not None else None, log_time_order=True
-        ):
-            yield message.log_time, message.publish_time, channel, message.data
+        try:
+            for _schema, channel, message in self._reader.iter_messages(
+                topics=sorted(topics) if topics is not None else None, log_time_order=True
+            ):
+                yield message.log_time, message.publish_time, channel, message.data
+        except BagError:
+            raise
+        except Exception as exc:  # a damaged chunk or index: name the record
+            raise BagError(self.damage_report(f"{type(exc).__name__}: {exc}")) from None
+
+    def damage_report(self, error: str) -> str:
+        """A message for a read failure: the damaged record found by a verifying scan."""
+        try:
+            damage = scan_mcap(self.path, load_messages=False, verify=True).damage
+        except BagError as exc:
+            damage = [str(exc)]
+        where = damage[0] if damage else f"{self.path}: damaged"
+        return (
+            f"bag file {self.path} is corrupt, reading failed ({error}): {where}. Run "
+            f"'dea-ros bag info {self.path}' for every problem, 'dea-ros bag recover --salvage' to keep "
+            "the readable records"
+        )
 
 
 class BagReader:
@@ -155,6 +191,7 @@ class BagReader:
         self.bag_metadata: Optional[Dict[str, Any]] = None
         self._files: List[_McapFile] = []
         self._decoders: Dict[Tuple[int, int], Callable[[bytes], Any]] = {}
+        self._metadata_problems: List[str] = []
         try:
             for file_path in self._resolve_files():
                 self._files.append(_McapFile(file_path))
@@ -189,7 +226,7 @@ class BagReader:
         self._bag_dir = path
         metadata_path = path / METADATA_FILENAME
         if metadata_path.is_file():
-            info = load_metadata_yaml(metadata_path)
+            info = _load_metadata(metadata_path)
             if info["storage_identifier"] != "mcap":
                 raise BagError(
                     f"{metadata_path}: storage_identifier is {info['storage_identifier']!r}; only "
@@ -241,6 +278,7 @@ class BagReader:
             else:
                 continue
             self.problems.append(problem)
+            self._metadata_problems.append(problem)
             if self._warn:
                 warnings.warn(problem, BagWarning, stacklevel=3)
 
@@ -254,6 +292,11 @@ class BagReader:
     def files(self) -> List[Path]:
         """The ``.mcap`` storage files read."""
         return [f.path for f in self._files]
+
+    @property
+    def damaged(self) -> bool:
+        """True when opening found corruption (a damaged record or summary); see :meth:`verify`."""
+        return any(f.damaged for f in self._files)
 
     @property
     def truncated(self) -> bool:
@@ -400,11 +443,8 @@ class BagReader:
                 f"{channel.message_encoding!r}, schema encoding {getattr(schema, 'encoding', None)!r}; "
                 "only 'cdr' messages with 'ros2msg' schemas are supported (use raw_messages())"
             )
-        from mcap_ros2._dynamic import generate_dynamic
-
         try:
-            decoders = generate_dynamic(schema.name, schema.data.decode("utf-8"))
-            decoder = decoders[schema.name]
+            decoder = message_decoder(schema.name, schema.data)
         except Exception as exc:
             raise BagError(
                 f"cannot parse the message definition of {schema.name} (topic {channel.topic}) in "
@@ -412,6 +452,37 @@ class BagReader:
             ) from exc
         self._decoders[key] = decoder
         return decoder
+
+    # -- verification ---------------------------------------------------------------------------
+    def verify(self, decode: bool = True, max_decode_errors: int = 5) -> List[str]:
+        """Check the whole bag; return the corruption found (empty list: intact).
+
+        Reads every record of every storage file (:func:`~dea_ros.bag.mcap_io.scan_mcap` with
+        ``verify=True``): chunk CRCs and decompression, the Message Index records against the
+        chunks, the data-section CRC, the summary section and footer against the data. With
+        ``decode``, every message is decoded with the schema stored for its channel. Also lists a
+        ``metadata.yaml`` that disagrees with the storage files. Each entry names the file and the
+        record (offset, topic, log time). An unfinished file (recorder killed) is not corruption:
+        see :attr:`truncated`.
+        """
+        problems: List[str] = []
+        for mcap_file in self._files:
+            try:
+                scan = scan_mcap(mcap_file.path, load_messages=decode, verify=True)
+            except BagError as exc:
+                problems.append(str(exc))
+                continue
+            problems.extend(scan.damage)
+            for channel in scan.channels.values():
+                try:
+                    parse_qos_profiles(channel.metadata.get("offered_qos_profiles", ""))
+                except ValueError as exc:
+                    problems.append(f"{mcap_file.path}: channel {channel.id} ({channel.topic}): "
+                                    f"offered_qos_profiles unreadable ({exc})")
+            if decode:
+                problems.extend(_decode_problems(scan, max_decode_errors))
+        problems.extend(self._metadata_problems)
+        return problems
 
     # -- lifetime -------------------------------------------------------------------------------
     def close(self) -> None:
@@ -424,3 +495,67 @@ class BagReader:
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         self.close()
+
+
+def _load_metadata(path: Path) -> Dict[str, Any]:
+    """:func:`load_metadata_yaml`, with every way a damaged file can fail as :class:`BagError`."""
+    try:
+        return load_metadata_yaml(path)
+    except RecursionError:
+        raise BagError(f"{path} is nested too deeply to be a rosbag2 metadata file; if the .mcap file is "
+                       "intact, delete it and run 'dea-ros bag recover' to regenerate it") from None
+    except UnicodeDecodeError:
+        raise BagError(f"{path} is not text (damaged); if the .mcap file is intact, delete it and run "
+                       "'dea-ros bag recover' to regenerate it") from None
+
+
+def message_decoder(type_name: str, schema_data: bytes) -> Callable[[bytes], Any]:
+    """mcap_ros2's dynamic CDR decoder for a ``ros2msg`` schema (its parser's prints silenced)."""
+    import contextlib
+    import io
+
+    from mcap_ros2._dynamic import generate_dynamic
+
+    text = schema_data.decode("utf-8")
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return generate_dynamic(type_name, text)[type_name]
+
+
+def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
+    """Decode every message of a scan with its channel's schema; the failures, as text."""
+    decoders: Dict[int, Optional[Callable[[bytes], Any]]] = {}
+    problems: List[str] = []
+    failures = 0
+    for number, (message, offset) in enumerate(zip(scan.messages, scan.message_offsets)):
+        channel = scan.channels.get(message.channel_id)
+        where = f"{scan.path}: message {number} (record at offset {offset}, log time {message.log_time} ns)"
+        if channel is None:
+            failures += 1
+            if failures <= max_errors:
+                problems.append(f"{where} refers to channel {message.channel_id}, which the file does not define")
+            continue
+        if message.channel_id not in decoders:
+            schema = scan.schemas.get(channel.schema_id)
+            decoder = None
+            if channel.message_encoding == "cdr" and schema is not None and schema.encoding == "ros2msg":
+                try:
+                    decoder = message_decoder(schema.name, schema.data)
+                except Exception:  # noqa: BLE001
+                    # not necessarily damage (e.g. service event schemas the decoder does not parse);
+                    # damage to a schema's bytes is caught by the data-section CRC
+                    decoder = None
+            decoders[message.channel_id] = decoder
+        decoder = decoders[message.channel_id]
+        if decoder is None:
+            continue  # not CDR/ros2msg, or a schema the decoder cannot parse: not checked
+        try:
+            decoder(message.data)
+        except Exception as exc:  # noqa: BLE001 - any decoder failure is corruption
+            failures += 1
+            if failures <= max_errors:
+                type_name = scan.schemas[channel.schema_id].name
+                problems.append(f"{where} on {channel.topic} does not decode as {type_name}: "
+                                f"{type(exc).__name__}: {exc}")
+    if failures > max_errors:
+        problems.append(f"{scan.path}: {failures - max_errors} more messages fail to decode")
+    return problems

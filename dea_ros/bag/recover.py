@@ -10,16 +10,31 @@ from the MCAP channels and the ``rosbag2`` Metadata record. Complete files are l
 running it on a healthy bag only rewrites ``metadata.yaml``.
 
 It is the equivalent of ``ros2 bag reindex`` plus MCAP's ``mcap recover``, without ROS.
+
+Every file is verified first (chunk CRCs, decompression, data-section CRC, indexes, summary).
+Damage limited to indexes or the summary is rebuilt from the data without loss. Damage to the
+data itself (a record that cannot be read) stops the recovery with :class:`BagError` naming the
+file and record, before anything is changed, unless ``salvage=True``: then every readable record
+is kept and the damaged ones are skipped.
+
+Nothing is ever left half-written: a rewritten file goes to ``<file>.recovering``, is fsynced and
+renamed over the original (the temporary file is removed on any failure), and a full disk is
+reported as such, naming the path. ``in_place=True`` (used by the recorder after a write error,
+and ``dea-ros bag recover --in-place`` on a full disk) finishes an unfinished file where it lies
+instead: it is cut back to its last complete record and its summary appended, which needs no
+second copy of the data.
 """
 
+import errno
 import os
+import shutil
 from pathlib import Path
-from typing import Any, Dict, List, NamedTuple, Optional, Union
+from typing import Any, Dict, List, Mapping, NamedTuple, Optional, Sequence, Tuple, Union
 
 import yaml
 
 from .errors import BagError
-from .mcap_io import McapChunkedWriter, has_valid_footer, scan_mcap
+from .mcap_io import McapChunkedWriter, finish_in_place, scan_mcap
 from .metadata import (
     EMPTY_BAG_STARTING_TIME_NS,
     METADATA_FILENAME,
@@ -31,13 +46,14 @@ from .metadata import (
     load_metadata_yaml,
     metadata_version_for_format,
 )
-from .qos import parse_qos_profiles
-from .reader import _McapFile
+from .qos import parse_qos_profiles, serialize_qos_profiles
+from .reader import message_decoder
 from .writer import ROSBAG2_METADATA_RECORD, _write_text_atomic
 
 __all__ = ["recover_bag", "RecoveryReport"]
 
 _BACKUP_SUFFIX = ".truncated"
+_DAMAGED_SUFFIX = ".damaged"
 
 
 class RecoveryReport(NamedTuple):
@@ -50,6 +66,24 @@ class RecoveryReport(NamedTuple):
     topic_message_counts: Dict[str, int]
     dropped_bytes: int  #: bytes of incomplete records discarded
     problems: List[str]  #: what was wrong, per file
+    damage: List[str] = []  #: corruption found (with ``salvage``: what was skipped)
+    in_place: List[Path] = []  #: files finished in place (no copy)
+
+    def summary(self) -> str:
+        """A few lines for a person: what was done, how many messages, what was lost."""
+        lines = [f"bag {self.bag_dir}: {self.message_count} messages in {len(self.files)} file(s)"]
+        for file_path in self.rewritten:
+            how = "finished in place" if file_path in self.in_place else "rewritten"
+            lines.append(f"  {how}: {file_path}")
+        if not self.rewritten:
+            lines.append("  storage files intact: only metadata.yaml regenerated")
+        if self.dropped_bytes:
+            lines.append(f"  {self.dropped_bytes} bytes of incomplete or damaged records dropped")
+        for topic, count in sorted(self.topic_message_counts.items()):
+            lines.append(f"  {topic:<40} {count:>8}")
+        for problem in self.damage:
+            lines.append(f"  damage: {problem}")
+        return "\n".join(lines)
 
 
 def _storage_files(path: Path) -> List[Path]:
@@ -63,8 +97,8 @@ def _storage_files(path: Path) -> List[Path]:
         try:
             info = load_metadata_yaml(metadata_path)
             files = [path / Path(p).name for p in info["relative_file_paths"] if (path / Path(p).name).is_file()]
-        except BagError:
-            files = []  # regenerated below
+        except (BagError, RecursionError, UnicodeDecodeError):
+            files = []  # damaged: regenerated below
     for candidate in sorted(path.glob("*.mcap")):
         if candidate not in files:
             files.append(candidate)
@@ -104,37 +138,54 @@ def recover_bag(
     *,
     keep_original: bool = True,
     rosbag2_format: Optional[str] = None,
+    salvage: bool = False,
+    in_place: bool = False,
+    extra_metadata: Sequence[Tuple[str, Mapping[str, str]]] = (),
 ) -> RecoveryReport:
     """Make an unfinished/truncated bag readable by every tool; regenerate ``metadata.yaml``.
 
     :param path: bag directory, or a single ``.mcap`` file (then only that file is repaired and
         the ``metadata.yaml`` written next to it describes only that file).
-    :param keep_original: keep each rewritten original as ``<file>.truncated``.
+    :param keep_original: keep each rewritten original as ``<file>.truncated`` (``<file>.damaged``
+        when records were skipped).
     :param rosbag2_format: ``"jazzy"`` or ``"humble"`` metadata; default: the version recorded in
         the bag's ``rosbag2`` MCAP Metadata record, else ``"humble"`` when the channels carry
         integer QoS enums (Humble writes no such record), else ``"jazzy"``.
-    :raises BagError: when the path holds no MCAP file or a file is not MCAP at all.
+    :param salvage: keep what is readable of files whose data are damaged (skipping the damaged
+        records) instead of raising :class:`BagError`.
+    :param in_place: finish unfinished, undamaged files where they lie (no copy: works on a full
+        disk; no backup of the original is kept).
+    :param extra_metadata: MCAP Metadata records ``(name, {key: value})`` to add to each
+        rewritten file (e.g. an experiment marked aborted).
+    :raises BagError: when the path holds no MCAP file, a file is not MCAP at all, its data are
+        damaged (without ``salvage``), or the disk is full; the message names the file.
     """
     path = Path(path).expanduser()
     bag_dir = path.parent if path.is_file() else path
     files = _storage_files(path)
     problems: List[str] = []
+    damage: List[str] = []
     dropped = 0
-    scans = {}
-    infos = {}
+    scans = {}  # files to rewrite or finish -> their scan
+    all_scans = {}
     for file_path in files:
-        if has_valid_footer(file_path):
-            infos[file_path] = _McapFile(file_path)
-            infos[file_path].close()
-            if infos[file_path].problem:
-                problems.append(f"{file_path}: {infos[file_path].problem}")
-            continue
-        scan = scan_mcap(file_path)
+        scan = all_scans[file_path] = scan_mcap(file_path, verify=True, salvage=salvage)
         if scan.header is None:
             raise BagError(f"cannot recover {file_path}: it ends before the MCAP Header record")
+        damage.extend(scan.damage)
+        if scan.data_lost and not salvage:
+            listing = "; ".join(scan.damage[:5]) + (f" (and {len(scan.damage) - 5} more)" if len(scan.damage) > 5 else "")
+            raise BagError(
+                f"cannot recover {file_path}: its data are damaged, not only cut short: {listing}. Nothing was "
+                f"changed. Rerun with --salvage (salvage=True) to keep the {scan.message_count} readable "
+                "messages and skip the damaged records"
+            )
+        if scan.complete and not scan.damage:
+            continue  # intact: left untouched
+        damage.extend(_repair_definitions(scan, _recorded_qos(bag_dir)))
         scans[file_path] = scan
-        dropped += scan.file_size - scan.valid_end
-        problems.append(f"{file_path}: {scan.problem or 'no footer'}")
+        dropped += scan.file_size - scan.valid_end if not scan.complete else 0
+        problems.append(f"{file_path}: {scan.problem or 'index or summary damaged'}")
 
     # Bag-level information: topics, counts, times, rosbag2 record.
     all_records = []
@@ -142,18 +193,16 @@ def recover_bag(
     topics: Dict[str, TopicSummary] = {}
     file_summaries: List[FileSummary] = []
     for file_path in files:
-        if file_path in scans:
-            scan = scans[file_path]
-            channels, schemas, records = scan.channels, scan.schemas, [(m.name, dict(m.metadata)) for m in scan.metadata]
-            counts: Dict[int, int] = {}
-            for message in scan.messages:
-                counts[message.channel_id] = counts.get(message.channel_id, 0) + 1
-            times = [m.log_time for m in scan.messages]
-            start, end, count = min(times, default=0), max(times, default=0), len(times)
+        scan = all_scans[file_path]
+        channels, schemas = scan.channels, scan.schemas
+        records = [(m.name, dict(m.metadata)) for m in scan.metadata]
+        known = set(channels)
+        counts = {cid: n for cid, n in scan.channel_counts.items() if cid in known}
+        times = [m.log_time for m in scan.messages if m.channel_id in known] if file_path in scans else None
+        if times is None:
+            start, end, count = scan.message_start_time, scan.message_end_time, scan.message_count
         else:
-            info = infos[file_path]
-            channels, schemas, records = info.channels, info.schemas, info.metadata
-            counts, start, end, count = info.counts, info.start_time, info.end_time, info.message_count
+            start, end, count = min(times, default=0), max(times, default=0), len(times)
         all_records.extend(records)
         for channel_id, channel in channels.items():
             qos_texts.append(channel.metadata.get("offered_qos_profiles", ""))
@@ -199,10 +248,113 @@ def recover_bag(
         custom_data=custom_data,
         ros_distro=ros_distro,
     )
+    rosbag2_record = (ROSBAG2_METADATA_RECORD, {"serialized_metadata": dump_serialized_metadata(bag_info)})
+    finishing = list(extra_metadata) + ([rosbag2_record] if version >= 8 else [])
 
     rewritten: List[Path] = []
+    finished_in_place: List[Path] = []
     for file_path, scan in scans.items():
-        temporary = file_path.with_name(file_path.name + ".recovering")
+        if in_place and not scan.damage and not scan.data_end_seen and not scan.top_level_messages:
+            finish_in_place(file_path, scan, finishing)
+            finished_in_place.append(file_path)
+        else:
+            _rewrite(file_path, scan, finishing, keep_original)
+        rewritten.append(file_path)
+
+    _write_text_atomic(bag_dir / METADATA_FILENAME, dump_metadata_yaml(bag_info), fsync=True)
+    return RecoveryReport(
+        bag_dir=bag_dir,
+        files=files,
+        rewritten=rewritten,
+        message_count=sum(f.message_count for f in file_summaries),
+        topic_message_counts={name: t.message_count for name, t in topics.items()},
+        dropped_bytes=dropped,
+        problems=problems,
+        damage=damage,
+        in_place=finished_in_place,
+    )
+
+
+def _recorded_qos(bag_dir: Path) -> Dict[str, Any]:
+    """``{topic: [QosProfile]}`` from the bag's metadata.yaml, if it is readable."""
+    try:
+        info = load_metadata_yaml(bag_dir / METADATA_FILENAME)
+    except (BagError, RecursionError, UnicodeDecodeError, OSError):
+        return {}
+    return {name: list(t.offered_qos_profiles) for name, t in info["topics"].items() if t.offered_qos_profiles}
+
+
+def _repair_definitions(scan, recorded_qos: Mapping[str, Any]) -> List[str]:
+    """Make a damaged file's schemas and channels usable by every reader; what was done, as text.
+
+    A schema text that no longer parses is replaced by the installed/vendored definition of its
+    type (if known), else its channels and their messages are dropped; a channel whose
+    ``offered_qos_profiles`` no longer parses gets the topic's QoS from metadata.yaml, else none.
+    """
+    from mcap.records import Channel, Schema
+
+    from .definitions import MessageDefinitionStore
+
+    notes: List[str] = []
+    store = None
+    unusable = set()
+    for schema_id, schema in list(scan.schemas.items()):
+        if schema.encoding != "ros2msg":
+            continue
+        try:
+            message_decoder(schema.name, schema.data)
+            continue
+        except Exception:  # noqa: BLE001 - damaged text
+            pass
+        try:
+            store = store or MessageDefinitionStore()
+            definition = store.full_definition(schema.name)
+            message_decoder(schema.name, definition.text.encode("utf-8"))
+        except Exception:  # noqa: BLE001 - unknown or damaged type name too
+            unusable.add(schema_id)
+            notes.append(f"{scan.path}: schema {schema_id} ({schema.name!r}) is damaged and its type unknown: "
+                         "its topics are dropped")
+            continue
+        scan.schemas[schema_id] = Schema(id=schema_id, name=schema.name, encoding=schema.encoding,
+                                         data=definition.text.encode("utf-8"))
+        notes.append(f"{scan.path}: schema {schema_id} ({schema.name}) was damaged: replaced by the "
+                     "installed definition")
+    for channel_id, channel in list(scan.channels.items()):
+        if channel.schema_id in unusable:
+            del scan.channels[channel_id]
+            continue
+        text = channel.metadata.get("offered_qos_profiles", "")
+        try:
+            parse_qos_profiles(text)
+            continue
+        except ValueError:
+            pass
+        metadata = {k: v for k, v in channel.metadata.items() if k != "offered_qos_profiles"}
+        profiles = recorded_qos.get(channel.topic)
+        if profiles:
+            version = 5 if _qos_uses_integers(text) else 9
+            metadata["offered_qos_profiles"] = serialize_qos_profiles(profiles, version)
+        scan.channels[channel_id] = Channel(id=channel_id, topic=channel.topic,
+                                            message_encoding=channel.message_encoding,
+                                            schema_id=channel.schema_id, metadata=metadata)
+        notes.append(f"{scan.path}: channel {channel_id} ({channel.topic}): offered_qos_profiles damaged, "
+                     + ("taken from metadata.yaml" if profiles else "dropped"))
+    return notes
+
+
+def _rewrite(file_path: Path, scan, finishing, keep_original: bool) -> None:
+    """Write the scanned records to a complete ``<file>.recovering``, fsync, rename over ``file_path``."""
+    temporary = file_path.with_name(file_path.name + ".recovering")
+    needed = scan.valid_end + 64 * 1024
+    free = shutil.disk_usage(file_path.parent).free
+    if free < needed:
+        raise BagError(
+            f"cannot recover {file_path}: disk full ({free / 2**20:.1f} MiB free on the file system of "
+            f"{file_path.parent}, a recovered copy needs about {needed / 2**20:.1f} MiB). Nothing was "
+            "changed. Free some space, or finish the file where it lies with 'dea-ros bag recover --in-place'"
+            + (" (possible: it is only cut short)" if not scan.damage and not scan.data_end_seen else "")
+        )
+    try:
         if temporary.exists():
             temporary.unlink()
         with open(temporary, "xb", buffering=0) as handle:
@@ -228,22 +380,38 @@ def recover_bag(
                     writer.add_message(
                         message.channel_id, message.log_time, message.publish_time, message.data, message.sequence
                     )
-            if version >= 8:
-                writer.add_metadata(ROSBAG2_METADATA_RECORD, {"serialized_metadata": dump_serialized_metadata(bag_info)})
+            for name, data in finishing:
+                writer.add_metadata(name, data)
             writer.finish()
             os.fsync(handle.fileno())
         if keep_original:
-            os.replace(file_path, file_path.with_name(file_path.name + _BACKUP_SUFFIX))
+            suffix = _DAMAGED_SUFFIX if scan.data_lost else _BACKUP_SUFFIX
+            os.replace(file_path, file_path.with_name(file_path.name + suffix))
         os.replace(temporary, file_path)
-        rewritten.append(file_path)
+        _fsync_directory(file_path.parent)
+    except OSError as exc:
+        try:
+            temporary.unlink()
+        except OSError:
+            pass
+        full = exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+        raise BagError(
+            f"cannot recover {file_path}: "
+            + (f"disk full while writing {temporary} ({exc.strerror}); the temporary file was removed and "
+               f"{file_path} is unchanged. Free some space, or finish it where it lies with "
+               "'dea-ros bag recover --in-place'" if full else f"writing {temporary} failed: {exc.strerror or exc}")
+        ) from None
 
-    _write_text_atomic(bag_dir / METADATA_FILENAME, dump_metadata_yaml(bag_info), fsync=True)
-    return RecoveryReport(
-        bag_dir=bag_dir,
-        files=files,
-        rewritten=rewritten,
-        message_count=sum(f.message_count for f in file_summaries),
-        topic_message_counts={name: t.message_count for name, t in topics.items()},
-        dropped_bytes=dropped,
-        problems=problems,
-    )
+
+def _fsync_directory(directory: Path) -> None:
+    """Make a rename durable (best effort: not every platform can open a directory)."""
+    try:
+        handle = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(handle)
+    except OSError:
+        pass
+    finally:
+        os.close(handle)

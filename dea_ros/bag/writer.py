@@ -335,7 +335,10 @@ class BagWriter:
                 channel_metadata["topic_type_hash"] = resolved_hash
             channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
             self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
-            self._mcap.flush(fsync=self._fsync)
+            try:
+                self._mcap.flush(fsync=self._fsync)
+            except OSError as exc:
+                raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
 
     def write_serialized(
         self,
@@ -384,7 +387,7 @@ class BagWriter:
                 if self._mcap.pending_messages == 0:
                     self._pending_since = None
             except OSError as exc:
-                raise BagError(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
+                raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
 
     def write(
         self,
@@ -448,7 +451,7 @@ class BagWriter:
                 self._mcap.add_metadata(name, data)
                 self._mcap.flush(fsync=self._fsync)
             except OSError as exc:
-                raise BagError(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
+                raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
 
     def flush(self) -> None:
         """Close the open chunk and hand everything to the OS now (``fsync`` if configured)."""
@@ -460,7 +463,8 @@ class BagWriter:
         """Finish the MCAP file (summary, footer) and write ``metadata.yaml``; return the bag dir.
 
         Idempotent. After a failure to finish, the partial file can still be recovered with
-        :func:`dea_ros.bag.recover_bag`.
+        :func:`dea_ros.bag.recover_bag`. After a write error nothing more is written (the file
+        may end inside a record): the file is closed and :class:`BagError` raised; recover it.
         """
         with self._lock:
             if self._closed:
@@ -470,6 +474,12 @@ class BagWriter:
         if self._flusher is not None:
             self._flusher.join()
         with self._lock:
+            if self._flush_error is not None:
+                self._file.close()
+                raise BagError(
+                    f"{self._flush_error}; the bag was closed unfinished: run "
+                    f"dea_ros.bag.recover_bag({str(self._path)!r}) to salvage the recorded data"
+                )
             try:
                 info = self._bag_info()
                 if self._version >= 8:
@@ -500,13 +510,21 @@ class BagWriter:
         if self._closed:
             raise BagError(f"bag {self._path} is closed; open a new BagWriter to record more")
         if self._flush_error is not None:
-            raise self._flush_error
+            # a new exception each time: re-raising one object grows its traceback without end
+            raise BagError(f"{self._flush_error} (an earlier write failed; nothing more is written)")
+
+    def _poison(self, message: str) -> BagError:
+        """After a write error the file may end inside a record: refuse every later write."""
+        error = BagError(message)
+        if self._flush_error is None:
+            self._flush_error = error
+        return error
 
     def _flush_locked(self) -> None:
         try:
             self._mcap.flush(fsync=self._fsync)
         except OSError as exc:
-            raise BagError(f"flushing {self.mcap_path} failed: {exc.strerror or exc}") from exc
+            raise self._poison(f"flushing {self.mcap_path} failed: {exc.strerror or exc}") from exc
         self._pending_since = None
 
     def _flush_loop(self) -> None:
@@ -520,10 +538,8 @@ class BagWriter:
                 if since is not None and time.monotonic() - since >= 0.75 * self._flush_period:
                     try:
                         self._flush_locked()
-                    except BagError as exc:
-                        # Raised in the recording thread by its next write/flush.
-                        self._flush_error = exc
-                        return
+                    except BagError:
+                        return  # poisoned: raised in the recording thread by its next write/flush
 
     def _bag_info(self) -> Dict[str, Any]:
         count = self._mcap.message_count
@@ -587,4 +603,8 @@ def _write_text_atomic(path: Path, text: str, fsync: bool) -> None:
                 os.fsync(handle.fileno())
         os.replace(temporary, path)
     except OSError as exc:
+        try:
+            temporary.unlink()  # never leave a partial or empty file behind
+        except OSError:
+            pass
         raise BagError(f"cannot write {path}: {exc.strerror or exc}") from exc

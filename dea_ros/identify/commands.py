@@ -10,8 +10,9 @@ For testing without the main CLI::
 ``identify`` also accepts a rosbag2 MCAP bag (dispatched to :mod:`dea_ros.identify.from_bag`,
 which writes OUT/params.yaml and OUT/report/).
 
-Exit codes: 0 success; 2 bad data or arguments (the message names the file, column and
-fix); 1 a fit or solver failure.
+Exit codes: 0 success; 2 bad data or arguments (the message names the file, column or option
+and the fix: unreadable, binary or corrupt inputs, an existing file as ``--out``, out-of-range
+options); 1 a fit or solver failure.
 """
 from __future__ import annotations
 
@@ -45,26 +46,108 @@ def _progress_printer(stream):
     return show
 
 
+class _UsageError(Exception):
+    """Bad arguments or input files: exit code 2 with this message."""
+
+
+def _error(command: str, exc) -> int:
+    print(f"dea-ros {command}: error: {exc}", file=sys.stderr)
+    return 2
+
+
+def _input_problem(option: str, path, exc: BaseException) -> str | None:
+    """A message naming the input for errors a malformed file raises from deep inside a loader."""
+    if isinstance(exc, RecursionError):
+        return f"{option} {path}: a YAML file nested too deeply (thousands of nested brackets?)"
+    if isinstance(exc, UnicodeDecodeError):
+        bad = _binary_files(Path(path))
+        return f"{option} {path}: {', '.join(map(str, bad)) or 'a file'} is not text (binary content)"
+    if isinstance(exc, OSError):
+        return f"{option} {getattr(exc, 'filename', None) or path}: {exc.strerror or exc}"
+    return None
+
+
+def _binary_files(path: Path) -> list:
+    """The files at ``path`` (a file or the files of a folder) that are not UTF-8 text."""
+    files = [path] if path.is_file() else sorted(p for p in path.glob("*") if p.is_file()) if path.is_dir() else []
+    bad = []
+    for file in files[:200]:
+        try:
+            file.read_bytes().decode("utf-8")
+        except UnicodeDecodeError:
+            bad.append(file)
+        except OSError:
+            pass
+    return bad
+
+
+def _check_out_dir(path) -> None:
+    """``--out`` must be a folder (new or existing), not a file: checked before any work."""
+    out = Path(path)
+    if out.exists() and not out.is_dir():
+        raise _UsageError(f"--out {path}: exists and is not a folder; give a new or existing folder")
+    parent = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise _UsageError(f"--out {path}: {parent} is not a folder")
+
+
+def _check_harmonics(value) -> None:
+    from ..solvers.inputs import check_harmonics
+
+    try:
+        check_harmonics(value, "--harmonics")
+    except ValueError as exc:
+        raise _UsageError(str(exc)) from None
+
+
+def _check_membrane(name_or_path) -> None:
+    """``--membrane``: a preset or a parameters YAML that loads (plausibility included), before any work."""
+    from ..model.parameters import load_parameters
+
+    try:
+        load_parameters(name_or_path)
+    except (RecursionError, UnicodeDecodeError, OSError) as exc:
+        raise _UsageError(_input_problem("--membrane", name_or_path, exc)) from None
+    except ValueError as exc:  # ParameterError and the plausibility checks
+        raise _UsageError(f"--membrane {name_or_path}: {exc}") from None
+
+
+def _parse_floats(option: str, text: str) -> list:
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise _UsageError(f"{option}: comma-separated numbers in Hz expected, got {text!r}") from None
+    if not all(v > 0 and v < float("inf") for v in values):
+        raise _UsageError(f"{option}: frequencies must be positive and finite, got {text!r}")
+    return values
+
+
 def cmd_synth(args) -> int:
     """``dea-ros synth``: write a synthetic experiment set."""
     from ..model.parameters import MembraneParameters, ParameterError, load_parameters
     from .synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
 
     try:
-        if args.params:
-            params = MembraneParameters.from_yaml(args.params)
-        else:
-            params = load_parameters(args.membrane)
+        _check_out_dir(args.out)
+        try:
+            if args.params:
+                params = MembraneParameters.from_yaml(args.params)
+            else:
+                params = load_parameters(args.membrane)
+        except (RecursionError, UnicodeDecodeError, OSError) as exc:
+            raise _UsageError(_input_problem("--params" if args.params else "--membrane",
+                                             args.params or args.membrane, exc)) from None
         freqs = DEFAULT_SINE_FREQUENCIES_HZ
         if args.frequencies:
-            freqs = tuple(float(x) for x in args.frequencies.split(","))
+            freqs = tuple(_parse_floats("--frequencies", args.frequencies))
         progress = None if args.quiet else _progress_printer(sys.stderr)
         t0 = time.perf_counter()
         exp = synthesize(params, float(args.noise), args.out, seed=int(args.seed), sine_frequencies_Hz=freqs,
                          progress=progress)
-    except (ParameterError, ValueError) as exc:
-        print(f"dea-ros synth: error: {exc}", file=sys.stderr)
-        return 2
+    except (_UsageError, ParameterError, ValueError) as exc:
+        return _error("synth", exc)
+    except OSError as exc:
+        return _error("synth", f"--out {getattr(exc, 'filename', None) or args.out}: {exc.strerror or exc}")
     if not args.quiet:
         print(f"wrote {args.out}/manifest.yaml ({exp.summary()}) in {time.perf_counter() - t0:.1f} s",
               file=sys.stderr)
@@ -82,8 +165,16 @@ def cmd_identify(args) -> int:
     progress = None if args.quiet else _progress_printer(stream)
     t0 = time.perf_counter()
     fit_freqs = None
-    if args.fit_frequencies:
-        fit_freqs = "all" if args.fit_frequencies == "all" else [float(x) for x in args.fit_frequencies.split(",")]
+    try:
+        _check_out_dir(args.out)
+        _check_harmonics(args.harmonics)
+        if args.membrane:
+            _check_membrane(args.membrane)
+        if args.fit_frequencies:
+            fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
+                                                                                   args.fit_frequencies)
+    except _UsageError as exc:
+        return _error("identify", exc)
     data_path = Path(args.data)
     if not (data_path / "manifest.yaml").is_file() and not data_path.name.endswith((".yaml", ".yml")):
         bag_rc = _identify_bag_if_bag(args, data_path, progress, fit_freqs, t0)
@@ -91,18 +182,28 @@ def cmd_identify(args) -> int:
             return bag_rc
     try:
         experiments = load_experiment_set(args.data)
+    except (ExperimentError, ParameterError) as exc:
+        return _error("identify", exc)
+    except (RecursionError, UnicodeDecodeError, OSError) as exc:
+        return _error("identify", _input_problem("DATA", args.data, exc))
+    except ValueError as exc:  # a malformed value the loader did not name
+        return _error("identify", f"DATA {args.data}: {exc}")
+    try:
         t_load = time.perf_counter() - t0
         if not args.quiet:
             print(f"[data] {experiments.summary()} ({t_load:.2f} s)", file=stream, flush=True)
         result = identify(experiments, progress=progress, **_identify_options(args, fit_freqs))
         result.timings_s = {"load": t_load, **result.timings_s}
-        paths = write_report(result, args.out, plots=not args.no_plots)
     except (ExperimentError, ParameterError) as exc:
-        print(f"dea-ros identify: error: {exc}", file=sys.stderr)
-        return 2
+        return _error("identify", exc)
     except (RuntimeError, ArithmeticError, ValueError) as exc:
         print(f"dea-ros identify: the fit failed: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
+    try:
+        paths = write_report(result, args.out, plots=not args.no_plots)
+    except OSError as exc:
+        return _error("identify", f"--out {getattr(exc, 'filename', None) or args.out}: cannot write the "
+                                  f"report ({exc.strerror or exc})")
     total = time.perf_counter() - t0
     if args.json:
         data = result.to_dict()
@@ -135,22 +236,37 @@ def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | Non
         return None
     if not is_bag(path):
         return None
+    from ..bag import BagReader
     from ..bag.errors import BagError
     from ..model.parameters import ParameterError
     from .experiments import ExperimentError
 
     say = None if args.quiet else (lambda msg: print(f"[bag] {msg}", file=sys.stderr, flush=True))
     try:
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # listed in the corruption report below if it matters
+            with BagReader(path) as bag:
+                corruption = bag.verify(decode=False)  # CRCs, indexes, summary; decoding is checked when read
+        if corruption:
+            raise BagError(f"bag {path} is corrupt: {corruption[0]}"
+                           + (f" (and {len(corruption) - 1} more problems)" if len(corruption) > 1 else "")
+                           + f"; 'dea-ros bag info {path}' lists them, 'dea-ros bag recover --salvage' keeps "
+                             "the readable records")
         from ..bag.extract import BagTopics
 
         topics = BagTopics(voltage=args.voltage_topic, displacement=args.displacement_topic)
         summary = identify_bag(path, args.out, membrane=args.membrane, progress=say, plots=not args.no_plots,
                                topics=topics, segments_file=args.segments,
                                **_identify_options(args, fit_freqs))
-    except (ExperimentError, ParameterError, BagError, FileNotFoundError) as exc:
-        print(f"dea-ros identify: error: {exc}", file=sys.stderr)
-        return 2
-    except (RuntimeError, ArithmeticError, ValueError, OSError) as exc:
+    except (ExperimentError, ParameterError, BagError) as exc:
+        return _error("identify", exc)
+    except (RecursionError, UnicodeDecodeError) as exc:
+        return _error("identify", _input_problem("--segments/--membrane", args.segments or args.membrane, exc))
+    except OSError as exc:
+        return _error("identify", f"{getattr(exc, 'filename', None) or path}: {exc.strerror or exc}")
+    except (RuntimeError, ArithmeticError, ValueError) as exc:
         print(f"dea-ros identify: the fit failed: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     summary.setdefault("timings_s", {})["total"] = time.perf_counter() - t0

@@ -19,6 +19,12 @@ Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. Every tick
 for it before advancing (lockstep), so the commands reach the amplifier on time. ``~/abort``
 (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
+
+A recording fault (disk full, file size limit, I/O error, permission lost: any write error of
+the bag) stops the experiment: 0 V is commanded at once, the protocol is aborted, the bag is
+finished where it lies with everything written before the fault (no second copy is needed, so
+this works on a full disk; see :func:`dea_ros.bag.recover_bag` ``in_place``), ``~/status``
+reports ``state: error`` with the cause, and the node exits with code 1.
 """
 from __future__ import annotations
 
@@ -35,7 +41,8 @@ from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 
-from ..bag import BagError, BagWriter, QosProfile, check_writable, qos_from_dict, resolve_rosbag2_format
+from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
+                   resolve_rosbag2_format)
 from ..bag.extract import EXPERIMENT_METADATA
 from ..protocols import ProtocolError, load_protocol
 from .common import (
@@ -103,8 +110,10 @@ class IdentifierNode(Node):
         self.state = "starting"
         self.error = ""
         self.summary: dict = {}
-        self.finished = False
+        self.exit_at: float | None = None  # time.monotonic() at which main() lets the node exit
         self.exit_code = 0
+        self.recording_error = ""
+        self.fault_handled = False
         self.segment_index = -1
         self.t0_ns: int | None = None
         self.rig_seen = {"voltage_enabled": False, "displacement": False}
@@ -117,6 +126,9 @@ class IdentifierNode(Node):
             self.segments = self.protocol.schedule(self.max_voltage_V or None)
         except ProtocolError as exc:
             raise SystemExit(f"identifier_node: parameter 'protocol': {exc}") from None
+        except (RecursionError, UnicodeDecodeError) as exc:
+            raise SystemExit(f"identifier_node: parameter 'protocol': {self.protocol_ref} is not a protocol "
+                             f"YAML ({type(exc).__name__})") from None
         try:
             self.bag_format = resolve_rosbag2_format(self.bag_format)
         except BagError as exc:
@@ -135,7 +147,16 @@ class IdentifierNode(Node):
         except (BagError, OSError) as exc:
             self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
             return
-        self.open_bag()
+        try:
+            self.open_bag()
+        except BagError as exc:
+            if self.bag is not None:
+                try:
+                    self.bag.close()
+                except BagError:
+                    pass
+            self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
+            return
         self.create_timer(1.0 / self.command_rate_hz, self.on_tick)
         self.create_timer(0.5, self.publish_status)
         self.get_logger().info(
@@ -192,8 +213,8 @@ class IdentifierNode(Node):
             if topic in self.pending_topics:
                 try:
                     self.register_topic(topic)
-                except BagError as exc:
-                    self.get_logger().error(f"recording {topic} failed: {exc}", throttle_duration_sec=2.0)
+                except BagError as exc:  # adding a channel writes (and flushes) too: a write error
+                    self.recording_failed(exc)
                     return
             now_ns = self.get_clock().now().nanoseconds
             if now_ns == 0:  # simulated time before the first /clock: no valid log time yet
@@ -202,7 +223,7 @@ class IdentifierNode(Node):
             try:
                 bag.write_serialized(topic, data, now_ns)
             except BagError as exc:
-                self.get_logger().error(f"recording {topic} failed: {exc}", throttle_duration_sec=2.0)
+                self.recording_failed(exc)
         return record
 
     def on_voltage_seen(self, msg: BatteryState) -> None:
@@ -212,8 +233,8 @@ class IdentifierNode(Node):
     def on_displacement_seen(self, _msg: Range) -> None:
         self.rig_seen["displacement"] = True
 
-    def record_experiment_metadata(self, completed: int, aborted: bool) -> None:
-        self.bag.add_metadata(EXPERIMENT_METADATA, {
+    def experiment_metadata(self, completed: int, aborted: bool) -> dict:
+        return {
             "protocol": self.protocol.name,
             "protocol_source": str(self.protocol.source),
             "membrane": self.membrane_override or self.protocol.membrane,
@@ -223,7 +244,38 @@ class IdentifierNode(Node):
             "segments_completed": str(completed),
             "aborted": "true" if aborted else "false",
             "command_rate_hz": repr(self.command_rate_hz),
-        })
+            **({"error": self.recording_error} if self.recording_error else {}),
+        }
+
+    def record_experiment_metadata(self, completed: int, aborted: bool) -> None:
+        self.bag.add_metadata(EXPERIMENT_METADATA, self.experiment_metadata(completed, aborted))
+
+    @property
+    def finished(self) -> bool:
+        """main() stops spinning once this is True."""
+        return self.exit_at is not None and time.monotonic() >= self.exit_at
+
+    @finished.setter
+    def finished(self, value: bool) -> None:
+        self.exit_at = time.monotonic() if value else None
+
+    def recording_failed(self, exc: Exception) -> None:
+        """A write error of the bag: 0 V now, abort the protocol, keep what was written, report, exit."""
+        if self.fault_handled:
+            return
+        self.fault_handled = True
+        self.recording_error = self.recording_error or f"recording to {self.bag_dir} failed: {exc}"
+        for _ in range(3):
+            self.cmd_pub.publish(Float64(data=0.0))
+        self.publish_ack()
+        was = self.state
+        self.state = "error"  # stops the protocol (on_tick) before anything else can fail
+        self.get_logger().error(f"{self.recording_error}; 0 V commanded, protocol aborted ({was})")
+        self.finish_recording(aborted=True)
+        self.fail(f"{self.recording_error}; 0 V was commanded and the protocol aborted; "
+                  f"{self.summary.get('bag_note', '')}")
+        # exit even without exit_when_done, after a second for the status to reach its subscribers
+        self.exit_at = time.monotonic() + 1.0
 
     # ------------------------------------------------------------------ protocol
     def now_ns(self) -> int:
@@ -242,7 +294,11 @@ class IdentifierNode(Node):
                     self.destroy_subscription(sub)
                 self.ready_subs = []
                 self.t0_ns = self.now_ns()
-                self.record_experiment_metadata(0, aborted=False)
+                try:
+                    self.record_experiment_metadata(0, aborted=False)
+                except BagError as exc:
+                    self.recording_failed(exc)
+                    return
                 self.get_logger().info("rig ready: protocol started")
             elif time.monotonic() - self.wait_started > self.wait_for_rig_s:
                 missing = [k for k, v in self.rig_seen.items() if not v]
@@ -261,14 +317,19 @@ class IdentifierNode(Node):
             self.segment_index = len(self.segments)
             self.get_logger().info("protocol complete")
             self.finish_recording(aborted=False)
-            self.start_identification()
+            if self.state != "error":  # not after a recording fault
+                self.start_identification()
             return
         if k != self.segment_index:
             self.segment_index = k
             seg = self.segments[k]
             event = json.dumps({"event": "segment_start", **seg.to_dict()})
             self.segment_pub.publish(String(data=event))
-            self.bag.write(self.segment_topic, {"data": event}, self.now_ns())
+            try:
+                self.bag.write(self.segment_topic, {"data": event}, self.now_ns())
+            except BagError as exc:
+                self.recording_failed(exc)
+                return
             self.get_logger().info(
                 f"segment {k + 1}/{len(self.segments)}: {seg.kind} "
                 + ", ".join(f"{key} {val:g}" for key, val in seg.info.items() if isinstance(val, (int, float)))
@@ -289,15 +350,47 @@ class IdentifierNode(Node):
             if self.bag is None or self.bag.closed:
                 return
             completed = max(0, min(self.segment_index, len(self.segments)))
-            for topic in list(self.pending_topics):  # published but no message arrived: count 0
-                self.register_topic(topic, only_if_published=True)
-            if self.t0_ns is not None:
-                self.record_experiment_metadata(completed, aborted)
-            path = self.bag.close()
-            self.summary["bag"] = str(path)
+            failure = None
+            try:
+                for topic in list(self.pending_topics):  # published but no message arrived: count 0
+                    self.register_topic(topic, only_if_published=True)
+                if self.t0_ns is not None:
+                    self.record_experiment_metadata(completed, aborted or bool(self.recording_error))
+            except BagError as exc:
+                failure = exc
+            try:
+                self.bag.close()
+            except BagError as exc:
+                failure = failure or exc
+            self.summary["bag"] = str(self.bag_dir)
             self.summary["messages"] = self.bag.topic_message_counts()
-            self.get_logger().info(f"bag closed: {path} ({self.bag.message_count} messages)")
-        self.state = "aborted" if aborted else "recorded"
+            if failure is not None:
+                if not self.recording_error:
+                    self.recording_error = f"recording to {self.bag_dir} failed: {failure}"
+                self.salvage_bag(completed)
+            else:
+                self.get_logger().info(f"bag closed: {self.bag_dir} ({self.bag.message_count} messages)")
+        if failure is not None and not self.fault_handled:
+            self.recording_failed(failure)  # the fault showed only on closing (protocol end, abort)
+        if self.state != "error":
+            self.state = "aborted" if aborted else "recorded"
+
+    def salvage_bag(self, completed: int) -> None:
+        """After a write error: finish the bag where it lies, with the experiment marked aborted."""
+        metadata = []
+        if self.t0_ns is not None:
+            metadata.append((EXPERIMENT_METADATA, self.experiment_metadata(completed, aborted=True)))
+        try:
+            report = recover_bag(self.bag_dir, in_place=True, keep_original=False, extra_metadata=metadata)
+        except BagError as exc:
+            note = (f"the bag could not be finished ({exc}); once there is space run "
+                    f"'dea-ros bag recover --in-place {self.bag_dir}'")
+            self.get_logger().error(note)
+        else:
+            self.summary["messages"] = report.topic_message_counts
+            note = f"the {report.message_count} messages written before the fault are kept in {self.bag_dir}"
+            self.get_logger().warning(f"bag finished after the fault: {note}")
+        self.summary["bag_note"] = note
 
     def start_identification(self) -> None:
         if not self.identify:
@@ -360,6 +453,8 @@ class IdentifierNode(Node):
             self.cmd_pub.publish(Float64(data=0.0))
         self.get_logger().warning(f"aborted ({reason}): 0 V commanded, closing the bag")
         self.finish_recording(aborted=True)
+        if self.state == "error":  # closing the bag failed: reported as a recording fault
+            return True
         self.error = f"aborted by {reason}"
         self.done()
         return True

@@ -13,8 +13,56 @@ import numpy as np
 
 __all__ = [
     "VoltageSignal", "ConstantVoltage", "StepVoltage", "SineVoltage", "SampledVoltage",
-    "PeriodicInput", "SinePeriodic", "SampledPeriodic", "check_voltage",
+    "PeriodicInput", "SinePeriodic", "SampledPeriodic", "check_voltage", "check_recorded_voltage",
+    "check_harmonics", "MAX_HARMONICS", "MIN_PLAUSIBLE_PEAK_V",
 ]
+
+#: Largest number of harmonics accepted from a user: the harmonic-balance solve (and its Floquet
+#: stability) grows like (2N + 1)^3 per frequency, so N = 100000 would never finish; N <= 16
+#: resolves the DEA's response (the solvers warn when a higher harmonic still matters) and 32 is
+#: the most the solver's ``n_harmonics="auto"`` tries.
+MAX_HARMONICS = 32
+#: A recorded DEA drive voltage whose peak is below this is taken for a unit slip (kV for V):
+#: DEAs need hundreds to thousands of volts to move at all.
+MIN_PLAUSIBLE_PEAK_V = 50.0
+
+
+def check_harmonics(value, name: str = "n_harmonics") -> int:
+    """An integer number of harmonics in 1..:data:`MAX_HARMONICS`, or ValueError naming ``name``."""
+    try:
+        n = int(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: an integer number of harmonics is needed, got {value!r}") from None
+    if n != value or not 1 <= n <= MAX_HARMONICS:
+        raise ValueError(
+            f"{name}: must be an integer from 1 to {MAX_HARMONICS}, got {value!r} (the solve grows like "
+            f"(2N+1)^3 per frequency; N <= 16 resolves a DEA response, {MAX_HARMONICS} is the most "
+            "the solver's automatic choice uses)"
+        )
+    return n
+
+
+def check_recorded_voltage(voltage_V, name: str = "voltage_V") -> np.ndarray:
+    """A recorded or measured drive voltage in V: finite, not negative, not a kV unit slip.
+
+    DEA amplifiers are unipolar (0 V to a few kV), so a negative sample is an offset or sign
+    error; a peak below :data:`MIN_PLAUSIBLE_PEAK_V` (but above 0) is almost surely kV written
+    as V (2.5 instead of 2500). Raises ValueError naming ``name``, the value and the fix.
+    """
+    u = check_voltage(voltage_V, name)
+    if u.size and np.min(u) < 0.0:
+        k = int(np.argmin(u))
+        raise ValueError(
+            f"{name}: negative voltage {u.flat[k]:g} V (sample {k}); a DEA amplifier drives 0 V to a few kV "
+            "(remove the offset or the sign)"
+        )
+    peak = float(np.max(np.abs(u), initial=0.0))
+    if 0.0 < peak < MIN_PLAUSIBLE_PEAK_V:
+        raise ValueError(
+            f"{name}: the largest voltage is {peak:g} V, too small to move a DEA: this looks like kV; "
+            f"give volts (2.5 kV -> 2500)"
+        )
+    return u
 
 
 def check_voltage(value, name: str = "voltage_V") -> np.ndarray:

@@ -227,3 +227,105 @@ def test_recovered_humble_bag_keeps_the_humble_format(tmp_path):
     with AnyReader([tmp_path / "h"]) as reader:
         assert reader.message_count == report.message_count
 
+
+
+# -- a full disk: recover never leaves a partial file and says so ------------------------------
+def _run_with_file_size_limit(limit_bytes: int, *argv):
+    """``python -m dea_ros.cli ARGV`` in a process that cannot grow a file beyond ``limit_bytes``
+    (EFBIG, exactly what a full disk gives a writer)."""
+    import resource
+
+    def limit():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run([sys.executable, "-m", "dea_ros.cli", *map(str, argv)], capture_output=True,
+                          text=True, timeout=300, preexec_fn=limit)
+
+
+def _cut_bag(tmp_path: Path, name: str, fraction: float = 0.6) -> Path:
+    """A bag whose writer died in the middle of writing a chunk (at ``fraction`` of the file)."""
+    bag = _small_bag(tmp_path / name, count=400)
+    mcap = bag / f"{name}_0.mcap"
+    data = mcap.read_bytes()
+    chunk = next(c for c in scan_mcap(mcap).chunks if c.end > fraction * len(data))
+    (bag / "metadata.yaml").unlink()
+    mcap.write_bytes(data[: chunk.offset + chunk.record_length // 2])
+    return bag
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGXFSZ"), reason="needs POSIX file size limits")
+def test_recover_on_a_full_disk_exits_2_and_leaves_no_partial_file(tmp_path):
+    bag = _cut_bag(tmp_path, "full")
+    mcap = bag / "full_0.mcap"
+    before = mcap.read_bytes()
+    run = _run_with_file_size_limit(len(before) // 3, "bag", "recover", bag)  # the copy cannot be written
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert "disk full" in run.stderr and str(mcap) in run.stderr and "--in-place" in run.stderr
+    assert sorted(p.name for p in bag.iterdir()) == ["full_0.mcap"]  # no .recovering, no 0-byte file
+    assert mcap.read_bytes() == before
+    # finishing where it lies needs no copy: it works under the same limit
+    run = _run_with_file_size_limit(len(before) // 3 + len(before), "bag", "recover", "--in-place", bag)
+    assert run.returncode == 0, run.stderr
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with BagReader(bag) as reader:
+            assert reader.verify() == [] and not reader.truncated
+            count = reader.message_count
+    assert count == len(scan_mcap(bag / "full_0.mcap").messages) > 0
+    with AnyReader([bag]) as reader:
+        assert reader.message_count == count
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGXFSZ"), reason="needs POSIX file size limits")
+def test_metadata_yaml_that_cannot_be_written_leaves_no_partial_file(tmp_path):
+    bag = _small_bag(tmp_path / "meta", count=50)
+    (bag / "metadata.yaml").unlink()
+    run = _run_with_file_size_limit(200, "bag", "recover", bag)  # metadata.yaml is ~1 kB
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert str(bag / "metadata.yaml") in run.stderr
+    assert sorted(p.name for p in bag.iterdir()) == ["meta_0.mcap"]
+
+
+def test_recover_checks_free_space_before_writing(tmp_path, monkeypatch):
+    import dea_ros.bag.recover as recover_module
+
+    bag = _cut_bag(tmp_path, "nospace")
+    before = (bag / "nospace_0.mcap").read_bytes()
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(recover_module.shutil, "disk_usage", lambda _p: usage._replace(free=1000))
+    with pytest.raises(BagError, match=r"nospace_0.mcap: disk full \(0.0 MiB free.*--in-place"):
+        recover_bag(bag)
+    assert sorted(p.name for p in bag.iterdir()) == ["nospace_0.mcap"]
+    assert (bag / "nospace_0.mcap").read_bytes() == before
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGXFSZ"), reason="needs POSIX file size limits")
+def test_in_place_finish_writes_what_fits(tmp_path):
+    """Room left by the disk after the valid prefix decides: summary, no summary, or nothing."""
+    results = {}
+    for room in (0, 60, 1_000_000):
+        bag = _cut_bag(tmp_path, f"room{room}", fraction=0.55)
+        mcap = bag / f"room{room}_0.mcap"
+        scan = scan_mcap(mcap)
+        run = _run_with_file_size_limit(scan.valid_end + room, "bag", "recover", "--in-place", bag)
+        assert "Traceback" not in run.stderr
+        results[room] = run.returncode
+        if room == 0:  # not even Data End and Footer fit: cut back to the valid prefix, said so
+            assert run.returncode == 2 and "disk full" in run.stderr and str(mcap) in run.stderr
+            assert mcap.stat().st_size == scan.valid_end
+            with pytest.warns(BagWarning):
+                with BagReader(bag) as reader:
+                    assert reader.message_count == len(scan.messages)
+            continue
+        assert run.returncode == 0, run.stderr
+        finished = scan_mcap(mcap, verify=True)
+        assert finished.complete and finished.damage == []
+        assert len(finished.messages) == len(scan.messages)
+        with AnyReader([bag]) as reader:
+            assert reader.message_count == len(scan.messages)
+        if room == 60:
+            assert mcap.stat().st_size == scan.valid_end + 50  # Data End, Footer (no summary), magic
+        else:
+            assert mcap.stat().st_size > scan.valid_end + 1000  # with the summary and the rosbag2 record
+    assert results == {0: 2, 60: 0, 1_000_000: 0}

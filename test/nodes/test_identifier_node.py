@@ -5,6 +5,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +14,11 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState, Range
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from dea_ros.bag import BagReader, recover_bag
+from dea_ros.bag.mcap_io import scan_mcap
 from dea_ros.bag.extract import EXPERIMENT_METADATA
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range, make_voltage_state
 from dea_ros.nodes.identifier_node import IdentifierNode
@@ -166,3 +168,99 @@ def test_sigkill_of_the_recorder_loses_at_most_a_second(tmp_path):
         last = max(m.log_time_ns for m in bag.raw_messages(["/displacement"]))
         assert EXPERIMENT_METADATA in bag.metadata()
     assert t_kill - last * 1e-9 < 1.0 + 0.5  # flushed every 0.5 s (+ scheduling slack)
+
+
+@pytest.mark.skipif(not hasattr(__import__("resource"), "prlimit"), reason="needs Linux prlimit")
+def test_disk_full_while_recording_commands_0V_reports_and_keeps_the_bag(ros_context, spin_until, tmp_path):
+    """The recorder's disk fills up in the middle of the 2 kV level (attack from this process).
+
+    identifier_node runs in its own process; this process is the rig (it receives voltage_cmd)
+    and an operator watching ~/status. When the 2 kV level reaches the rig, the node's file size
+    limit is lowered to just above its bag's size (prlimit from outside: the next chunk write fails
+    with EFBIG, as on a full disk). Expected: 0 V at once, the protocol never reaches its next
+    level, status 'error' naming the cause, exit code 1 without a traceback, and the bag holds
+    the recording up to the fault and reads back with every reader.
+    """
+    import resource
+
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    from dea_ros.nodes.common import LATCHED_QOS
+
+    rig = FakeRig(ros_context)
+    operator = Node("operator", context=ros_context)
+    statuses = []
+    operator.create_subscription(String, "/identifier_node/status",
+                                 lambda m: statuses.append(json.loads(m.data)), LATCHED_QOS)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(rig)
+    ex.add_node(operator)
+    log = open(tmp_path / "identifier.log", "w+")  # noqa: SIM115 - closed below
+    ident = subprocess.Popen(
+        [sys.executable, "-m", "dea_ros.nodes.identifier_node", "--ros-args", "-p", "protocol:=quick",
+         "-p", f"output_dir:={tmp_path}", "-p", "run_name:=full", "-p", "identify:=false",
+         "-p", "command_rate_hz:=200.0", "-p", "min_free_mb:=1.0"],
+        stdout=log, stderr=subprocess.STDOUT, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGXFSZ, signal.SIG_IGN))  # EFBIG, not death
+    mcap = tmp_path / "full" / "bag" / "bag_0.mcap"
+    try:
+        assert spin_until(ex, lambda: rig.commands and max(rig.commands) > 1000.0, timeout_s=60.0), \
+            "the protocol did not reach 2 kV"
+        level = max(rig.commands)  # the 2 kV level of the staircase (the next one is 2250 V)
+        n_before = len(rig.commands)
+        limit = mcap.stat().st_size + 8192
+        resource.prlimit(ident.pid, resource.RLIMIT_FSIZE, (limit, limit))
+        assert spin_until(ex, lambda: ident.poll() is not None, timeout_s=60.0), "the node did not exit"
+        spin_until(ex, lambda: False, timeout_s=0.5)  # last datagrams
+    finally:
+        if ident.poll() is None:
+            ident.kill()
+        ident.wait(timeout=10)
+        ex.shutdown()
+        rig.destroy_node()
+        operator.destroy_node()
+    log.seek(0)
+    output = log.read()
+    log.close()
+    assert ident.returncode == 1, output
+    assert "Traceback" not in output
+    # what reached the amplifier: 0 V at once; the protocol never went on to its next level
+    after = rig.commands[n_before:]
+    assert after and after[-1] == 0.0
+    assert max(after) <= level
+    first_zero = after.index(0.0)
+    assert all(u == 0.0 for u in after[first_zero:])
+    # the operator sees the fault, not 'running'
+    assert statuses and statuses[-1]["state"] == "error", statuses[-3:]
+    assert "File too large" in statuses[-1]["error"] and "0 V was commanded" in statuses[-1]["error"]
+    summary = json.loads((tmp_path / "full" / "summary.json").read_text())
+    assert summary["state"] == "error" and "messages written before the fault are kept" in summary["error"]
+    # the bag: finished where it lies, within the limit, readable by every reader
+    assert mcap.stat().st_size <= limit
+    bag_dir = mcap.parent
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with BagReader(bag_dir) as bag:
+            assert not bag.truncated and bag.verify() == []
+            meta = bag.metadata()[EXPERIMENT_METADATA]
+            counts = {k: v.message_count for k, v in bag.topics().items()}
+            recorded_cmds = [m.message.data for m in bag.messages(["/voltage_cmd"])]
+    # the record marking the experiment aborted is added whenever it fits in the room left
+    # below the limit (the cut-off chunk's bytes); else the bag ends with a bare footer (50 bytes)
+    scan = scan_mcap(mcap)
+    if meta["aborted"] != "true":
+        first_record = next(m.length for m in scan.metadata_indexes if m.name == EXPERIMENT_METADATA)
+        marker = first_record + 1024  # + the error text
+        assert mcap.stat().st_size - 50 + marker > limit, "the aborted marker fitted but is missing"
+    else:
+        assert "File too large" in meta["error"] and int(meta["segments_completed"]) == 1
+    assert counts["/displacement"] > 100 and max(recorded_cmds) <= level  # the cut chunk may hold the 2 kV
+    with AnyReader([bag_dir]) as reader:
+        assert reader.message_count == sum(counts.values())
+    with open(mcap, "rb") as handle:
+        assert sum(1 for _ in make_reader(handle).iter_messages()) == sum(counts.values())
+    info = subprocess.run([sys.executable, "-m", "dea_ros.cli", "bag", "info", str(bag_dir)],
+                          capture_output=True, text=True, timeout=120)
+    assert info.returncode == 0, info.stderr
+    assert "Traceback" not in info.stderr
