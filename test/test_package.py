@@ -270,6 +270,112 @@ def params_of(config: Path, node: str) -> dict:
     return data[f"/**/{node}"]["ros__parameters"]
 
 
+# ---------------------------------------------------------------------------- launch files without launch
+class Recorded:
+    """A launch/launch_ros class replaced by a recorder of its arguments (the launch packages are not on PyPI)."""
+
+    def __init__(self, *args, **kwargs):
+        self.args, self.kwargs = args, kwargs
+
+
+def stub_module(name: str, **members):
+    """A module whose every attribute is a Recorded subclass of that name (``from launch.x import Anything``)."""
+    import types
+
+    module = types.ModuleType(name)
+    classes = {}
+
+    def getattr_(attr):
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        return classes.setdefault(attr, type(attr, (Recorded,), {}))
+
+    module.__getattr__ = getattr_
+    module.__path__ = []
+    module.__dict__.update(members)
+    return module
+
+
+def load_launch_file(path: Path, share: Path) -> list:
+    """Exec a launch file with stub launch modules; the actions of its LaunchDescription, flattened."""
+    import runpy
+    from unittest import mock
+
+    def share_dir(package):
+        assert package == "dea_ros", f"{path.name}: get_package_share_directory({package!r})"
+        return str(share)
+
+    modules = {name: stub_module(name) for name in (
+        "launch", "launch.actions", "launch.substitutions", "launch.event_handlers", "launch.events",
+        "launch.conditions", "launch.launch_description_sources", "launch_ros", "launch_ros.actions",
+        "launch_ros.parameter_descriptions", "launch_ros.substitutions", "launch_ros.event_handlers",
+        "launch_ros.events", "launch_ros.events.lifecycle")}
+    modules["ament_index_python"] = stub_module("ament_index_python")
+    modules["ament_index_python.packages"] = stub_module("ament_index_python.packages",
+                                                         get_package_share_directory=share_dir)
+    with mock.patch.dict(sys.modules, modules):
+        description = runpy.run_path(str(path))["generate_launch_description"]()
+    assert type(description).__name__ == "LaunchDescription", path.name
+
+    def walk(entities):
+        for e in entities:
+            yield e
+            if isinstance(e, Recorded):
+                for v in list(e.args) + list(e.kwargs.values()):
+                    if isinstance(v, (list, tuple)):
+                        yield from walk(v)
+                    elif isinstance(v, Recorded):
+                        yield from walk([v])
+
+    return list(walk(description.args[0]))
+
+
+class LaunchPlan:
+    """The nodes a launch file starts, with its parameters resolved from the launch arguments' defaults."""
+
+    def __init__(self, path: Path, share: Path, arguments: dict = None):
+        self.path = path
+        self.actions = load_launch_file(path, share)
+        declared = [a for a in self.actions if type(a).__name__ == "DeclareLaunchArgument"]
+        self.defaults = {a.args[0]: a.kwargs.get("default_value") for a in declared}
+        self.arguments = dict(arguments or {})
+        self.nodes = [a for a in self.actions if type(a).__name__ in ("Node", "LifecycleNode")]
+
+    def value(self, v):
+        kind = type(v).__name__
+        if kind == "LaunchConfiguration":
+            name = v.args[0]
+            assert name in self.defaults, f"{self.path.name}: launch argument {name!r} is used but not declared"
+            return self.arguments[name] if name in self.arguments else self.value(self.defaults[name])
+        if kind == "ParameterValue":
+            value_type = v.kwargs.get("value_type")
+            raw = self.value(v.args[0])
+            if value_type is bool:
+                return raw if isinstance(raw, bool) else str(raw).lower() == "true"
+            return value_type(raw) if value_type else yaml.safe_load(str(raw))
+        if isinstance(v, Recorded):
+            raise AssertionError(f"{self.path.name}: cannot check the substitution {kind}")
+        return v
+
+    def node(self, name: str):
+        found = [n for n in self.nodes if n.kwargs.get("name") == name]
+        return found[0] if found else None
+
+    def parameters(self, node) -> tuple:
+        """(params files, {name: value} of the dicts, later ones overriding) of a Node action."""
+        files, values = [], {}
+        for entry in node.kwargs.get("parameters", []):
+            if isinstance(entry, dict):
+                values.update({k: self.value(v) for k, v in entry.items()})
+            else:
+                files.append(Path(self.value(entry)))
+        return files, values
+
+
+def launch_files() -> list:
+    return sorted(p.name for p in (ROOT / "launch").glob("*.launch.py"))
+
+
 # ---------------------------------------------------------------------------- what ships
 def test_every_module_of_the_source_tree_is_installed(install):
     """Every .py of dea_ros/ (every subpackage) is in the colcon install: a missing __init__.py shows here."""
@@ -305,6 +411,89 @@ def test_every_node_config_and_launch_file_is_installed_where_ros2_looks(install
             assert (share / rel).is_file(), f"{rel} not installed in share/dea_ros"
     for config in NODES.values():
         assert (share / "config" / config).is_file(), config
+
+
+@pytest.mark.parametrize("launch_file", launch_files())
+def test_launch_file_names_only_what_the_install_has(install, launch_file):
+    """Every executable, config file, parameter and file a launch file names exists in the install.
+
+    The launch file is executed with stub launch modules (launch is not on PyPI; docs/deployment.md
+    tells how the launch files were run with the real launch sources). Parameter names are checked
+    against the node's installed config file, which lists every parameter the node declares
+    (test_config_files_list_every_declared_parameter).
+    """
+    share = install / "share" / "dea_ros"
+    plan = LaunchPlan(share / "launch" / launch_file, share)
+    assert plan.nodes, f"{launch_file} starts no node"
+    resolved = {}
+    for action in plan.nodes:
+        kw = action.kwargs
+        exe = kw.get("executable")
+        assert kw.get("package") == "dea_ros" and exe in NODES, f"{launch_file}: {kw.get('package')}/{exe}"
+        assert (install / "lib" / "dea_ros" / exe).is_file(), f"{launch_file}: {exe} is not installed"
+        assert kw.get("name") == exe, f"{launch_file}: {exe} renamed to {kw.get('name')!r} (configs are keyed by name)"
+        assert plan.value(kw.get("namespace")) == NAMESPACE.strip("/"), f"{launch_file}: {exe} outside {NAMESPACE}"
+        files, values = plan.parameters(action)
+        assert files and files[0] == share / "config" / NODES[exe], f"{launch_file}: {exe} must read its config first"
+        for f in files:
+            assert f.is_file(), f"{launch_file}: {exe}: no parameters file {f}"
+        config = params_of(files[0], exe)
+        for key, value in values.items():
+            if key == "use_sim_time":
+                assert isinstance(value, bool), f"{launch_file}: {exe}: use_sim_time {value!r}"
+                continue
+            assert key in config, f"{launch_file}: {exe} has no parameter {key!r} (not in {files[0].name})"
+            assert yaml_kind(value) == yaml_kind(config[key]), \
+                f"{launch_file}: {exe}: {key}={value!r} is a {yaml_kind(value)}, the node declares {config[key]!r}"
+        merged = dict(config)
+        for f in files[1:]:
+            merged.update(params_of(f, exe))
+        merged.update(values)
+        if "params_file" in merged and merged["params_file"] not in ("LP1", "A1", "A2"):
+            assert Path(merged["params_file"]).is_file(), f"{launch_file}: {exe}: params_file {merged['params_file']}"
+        if exe == "identifier_node":
+            protocol = merged["protocol"]
+            assert (share / "config" / "protocols" / f"{protocol}.yaml").is_file() or Path(protocol).is_file()
+        resolved[exe] = (action, merged)
+    amp = resolved.get("amplifier_node")
+    if amp:
+        action, params = amp
+        assert type(action).__name__ == "LifecycleNode", f"{launch_file}: the amplifier must be a LifecycleNode"
+        assert params["autostart"] == (params["backend"] == "mock"), \
+            f"{launch_file}: autostart only on the mock (backend {params['backend']}, autostart {params['autostart']})"
+    mock = resolved.get("mock_hardware_node")
+    if mock:
+        params = mock[1]
+        if amp:
+            assert amp[1]["mock_port"] == params["amplifier_port"], f"{launch_file}: amplifier and mock UDP ports"
+        if "laser_sensor_node" in resolved:
+            assert resolved["laser_sensor_node"][1]["port"] == params["laser_port"], f"{launch_file}: laser port"
+        publishers = ("laser_sensor_node" in resolved) + (params["laser_output"] in ("topic", "both"))
+        assert publishers == 1, f"{launch_file}: displacement has {publishers} publishers"
+        if params["publish_clock"]:
+            assert "laser_sensor_node" not in resolved and params["laser_output"] == "topic"
+            for exe, (_, p) in resolved.items():  # the mock is the clock master: it runs on the wall clock
+                assert p.get("use_sim_time", False) is (exe != "mock_hardware_node"), \
+                    f"{launch_file}: {exe}: use_sim_time {p.get('use_sim_time')} in simulated time"
+    if "identifier_node" in resolved:
+        assert resolved["identifier_node"][1]["exit_when_done"] is True
+        handlers = [a for a in plan.actions if type(a).__name__ == "OnProcessExit"
+                    and a.kwargs.get("target_action") is resolved["identifier_node"][0]]
+        assert handlers and any(type(e).__name__ == "Shutdown" for e in load_entities(handlers[0])), \
+            f"{launch_file}: the launch must shut down when identifier_node exits"
+
+
+def load_entities(action) -> list:
+    out = []
+    for v in list(action.args) + list(action.kwargs.values()):
+        for e in (v if isinstance(v, (list, tuple)) else [v]):
+            if isinstance(e, Recorded):
+                out += [e] + load_entities(e)
+    return out
+
+
+def test_the_three_launch_files_exist():
+    assert {"mock_rig.launch.py", "rig.launch.py", "identify_mock.launch.py"} <= set(launch_files())
 
 
 # ---------------------------------------------------------------------------- the nodes from the install
@@ -368,6 +557,25 @@ def test_parameters_hold_the_installed_config_values(rig, node):
             assert got == pytest.approx(want, rel=1e-12, abs=0.0), f"{node}: {name}"
         else:
             assert got == want, f"{node}: {name}"
+
+
+#: parameters every rclpy node has (not the package's to document)
+STANDARD_PARAMETERS = {"use_sim_time", "start_type_description_service"}
+#: declared but deliberately not in the config file: a fixed value there would override a run-time default
+NOT_IN_CONFIG = {"identifier_node": {"rosbag2_format"}}  # (the bag format follows ROS_DISTRO: issue 8 item 3)
+
+
+@pytest.mark.parametrize("node", list(NODES))
+def test_config_files_list_every_declared_parameter(rig, node):
+    """config/<node>.yaml documents every parameter the node declares (the launch files are checked against it)."""
+    from rcl_interfaces.srv import ListParameters
+
+    test_every_node_is_alive_in_the_namespace(rig)
+    declared = set(rig.call(ListParameters, f"{NAMESPACE}/{node}/list_parameters",
+                            ListParameters.Request()).result.names)
+    documented = set(params_of(rig.config / NODES[node], node)) | STANDARD_PARAMETERS | NOT_IN_CONFIG.get(node, set())
+    missing = {p for p in declared - documented if not p.startswith("qos_overrides.")}
+    assert not missing, f"{node} declares parameters missing from config/{NODES[node]}: {sorted(missing)}"
 
 
 def activate_amplifier(rig) -> None:
