@@ -1,4 +1,4 @@
-"""An identification run on the mock rig in simulated time:  ros2 launch dea_ros identify_mock.launch.py
+"""Identification run on the mock rig in simulated time: ``ros2 launch dea_ros identify_mock.launch.py``.
 
 The launch equivalent of ``dea-ros rig demo``. mock_hardware_node simulates ``true_params`` and is
 the clock master (``/clock`` up to ``speed`` times real time, lockstep with the amplifier and the

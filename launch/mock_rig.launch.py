@@ -1,4 +1,4 @@
-"""The whole rig on mock hardware, in real time:  ros2 launch dea_ros mock_rig.launch.py
+"""The whole rig on mock hardware, in real time: ``ros2 launch dea_ros mock_rig.launch.py``.
 
 mock_hardware_node simulates the membrane and serves the amplifier (UDP) and an emulated ILD1320
 on a pseudo-terminal; amplifier_node (a lifecycle node, configured and activated at start: safe,

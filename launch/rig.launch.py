@@ -1,4 +1,4 @@
-"""The real rig:  ros2 launch dea_ros rig.launch.py membrane:=A2 laser_port:=/dev/ttyUSB0
+"""The real rig: ``ros2 launch dea_ros rig.launch.py membrane:=A2 laser_port:=/dev/ttyUSB0``.
 
 amplifier_node drives a Measurement Computing DAQ (uldaq) into the high-voltage amplifier. It is a
 lifecycle node that starts UNCONFIGURED (0 V) and is never autostarted here: a person enables the
