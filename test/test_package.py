@@ -62,7 +62,7 @@ SUBSCRIBED = {
     "/dea/voltage_cmd": ("std_msgs/msg/Float64", {"amplifier_node": (RELIABLE, VOLATILE)}),
     "/dea/voltage": ("sensor_msgs/msg/BatteryState", {"model_node": (BEST_EFFORT, VOLATILE)}),
 }
-SOURCE_IGNORE = shutil.ignore_patterns(".git", ".venv*", "build", "install", "log", "runs", "__pycache__",
+SOURCE_IGNORE = shutil.ignore_patterns(".git", ".venv*", ".ci-logs", "build", "install", "log", "runs", "__pycache__",
                                        "*.egg-info", ".pytest_cache")
 # ROS graph of this test: a private domain unless the caller chose one (as test/nodes/conftest.py)
 os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
