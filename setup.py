@@ -21,22 +21,30 @@ setup(
     ],
     # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2
     # is sourced, from requirements-ros-wheels.txt: never from install_requires.
+    # Minimum versions: the oldest each line of code needs, tested in CI (.ci/run, stack humble:
+    # Ubuntu 22.04's numpy 1.21.5, scipy 1.8.0, matplotlib 3.5.1, PyYAML 5.4.1, pyserial 3.5).
+    # On a lab PC apt's packages satisfy them, so pip leaves them alone.
+    python_requires=">=3.10",
     install_requires=[
-        "numpy>=1.24",
-        "scipy>=1.10",
-        "PyYAML>=6.0",
-        "matplotlib>=3.6",
-        "mousai==0.3.1",
+        "numpy>=1.21.5",
+        "scipy>=1.8.0",
+        "PyYAML>=5.4.1",
+        "matplotlib>=3.5.1",
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
         "pyserial>=3.5",
     ],
+    extras_require={
+        # only for `--method mousai` (the paper's harmonic-balance code, for comparison)
+        "mousai": ["mousai==0.3.1"],
+        # only for amplifier_node backend uldaq (Measurement Computing DAQ); needs libuldaq (README)
+        "uldaq": ["uldaq>=1.2.3"],
+    },
     zip_safe=True,
     maintainer="dea_ros developers",
     maintainer_email="dea-ros@example.org",
     description="DEA model, harmonic-balance identification and ROS 2 rig nodes",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "dea-ros = dea_ros.cli:main",

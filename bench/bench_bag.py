@@ -33,7 +33,8 @@ TYPE = "sensor_msgs/msg/Range"
 def range_dict(i: int) -> dict:
     """A Range message as the rig publishes it (frame 'dea_laser', range in metres)."""
     return {
-        "header": {"stamp": {"sec": 1_700_000_000 + i // 1000, "nanosec": (i % 1000) * 1_000_000}, "frame_id": "dea_laser"},
+        "header": {"stamp": {"sec": 1_700_000_000 + i // 1000, "nanosec": (i % 1000) * 1_000_000},
+                   "frame_id": "dea_laser"},
         "radiation_type": 1,
         "field_of_view": 0.05,
         "min_range": 0.001,
@@ -128,7 +129,8 @@ def main() -> None:
 
     print("### dea_ros.bag recorder throughput\n")
     print(f"- machine: {nproc()} CPUs (nproc), {cpu_model()}, {platform.system()} {platform.release()}")
-    print(f"- Python {platform.python_version()} ({sys.executable}); mcap {version('mcap')}, mcap-ros2-support {version('mcap-ros2-support')}")
+    print(f"- Python {platform.python_version()} ({sys.executable}); mcap {version('mcap')}, "
+          f"mcap-ros2-support {version('mcap-ros2-support')}")
     print(f"- message: {TYPE}, {payload_size:.0f} bytes CDR; flush_period_s=1.0; median of {args.repeats} runs; "
           "time from first write to close(); every run read back, no loss\n")
     print("| API | compression | messages/run | median msg/s | min-max msg/s | median MB/s (payload) |")

@@ -37,10 +37,10 @@ from dea_ros.identify.synth import synthesize
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine_info import machine_info  # noqa: E402
 
-from dea_ros.model import preset
-from dea_ros.solvers.inputs import SampledVoltage
-from dea_ros.solvers.integrate import simulate
-from dea_ros.solvers.transient import TransientCollocation
+from dea_ros.model import preset  # noqa: E402
+from dea_ros.solvers.inputs import SampledVoltage  # noqa: E402
+from dea_ros.solvers.integrate import simulate  # noqa: E402
+from dea_ros.solvers.transient import TransientCollocation  # noqa: E402
 
 
 machine = machine_info
@@ -198,14 +198,16 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, r in rows.items():
         d = r["dyn"]
-        print(f"| {name} | {d['n_evaluations']} / {d['n_jacobians']} | {fmt_s(d['hbm_fit_s'])} | {fmt_s(d['freq_hbm_s'])} | "
+        print(f"| {name} | {d['n_evaluations']} / {d['n_jacobians']} | {fmt_s(d['hbm_fit_s'])} | "
+              f"{fmt_s(d['freq_hbm_s'])} | "
               f"{fmt_s(d['freq_fi_s'])} | {d['freq_fi_s'] / d['freq_hbm_s']:.0f}x | {fmt_s(d['per_eval_hbm_s'])} | "
               f"{fmt_s(d['per_eval_fi_s'])} | {d['per_eval_fi_s'] / d['per_eval_hbm_s']:.0f}x | "
               f"{fmt_s(d['projected_fi_s'])} | **{d['projected_fi_s'] / d['hbm_fit_s']:.0f}x** |")
     if full:
         r = rows.get(full["name"])
         ratio = f"{full['time_s'] / r['dyn']['hbm_fit_s']:.0f}x" if r else "-"
-        print(f"\nFull integration fit, measured ({full['name']}): {fmt_s(full['time_s'])}, {full['evals']} evaluations, "
+        print(f"\nFull integration fit, measured ({full['name']}): {fmt_s(full['time_s'])}, "
+              f"{full['evals']} evaluations, "
               f"{full['jacs']} Jacobians; speed-up of the HBM fit: {ratio}.")
     print("\n### Static fit: paper (Nelder-Mead on eq. 19) vs least squares (default), same data\n")
     print("| Membrane | method | time | evaluations | RMS error [um] | max error [um] | eps_r error |")

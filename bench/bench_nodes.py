@@ -134,7 +134,8 @@ def main() -> None:
         f"### model_node latency, voltage message -> prediction, 1 kHz for {args.latency_s:g} s (separate processes)",
         "", "| sent | received | median [ms] | p99 [ms] | max [ms] |", "|---|---|---|---|---|",
         f"| {lat['sent']} | {lat['received']} | {lat['median_ms']:.3f} | {lat['p99_ms']:.3f} | {lat['max_ms']:.2f} |",
-        "", f"### Sensor pipeline: ILD1320 emulator (2 kHz, pty) -> laser_sensor_node -> subscriber, {args.pipeline_s:g} s",
+        "",
+        f"### Sensor pipeline: ILD1320 emulator (2 kHz, pty) -> laser_sensor_node -> subscriber, {args.pipeline_s:g} s",
         "", "| received | expected (from stamps) | dropped | rate [Hz] | max gap [ms] |", "|---|---|---|---|---|",
         f"| {pipe['received']} | {pipe['expected_from_stamps']} | {pipe['dropped']} | {pipe['rate_Hz']:.1f} | "
         f"{pipe['max_gap_ms']:.2f} |", "",

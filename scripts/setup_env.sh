@@ -2,8 +2,10 @@
 # Create/refresh the project's virtual environment in .venv (idempotent).
 #
 # * With ROS 2 sourced (ROS_DISTRO set, e.g. a lab PC with apt's Humble or newer):
-#   the venv sees the system site-packages (rclpy and messages from /opt/ros) and
-#   NO ros-* wheels are installed.
+#   the venv sees the system site-packages (rclpy and messages from /opt/ros, apt's numpy,
+#   scipy, matplotlib, PyYAML) and NO ros-* wheels are installed; pip's default strategy
+#   keeps every installed package that satisfies the requirements (the minimums are
+#   Ubuntu 22.04's versions), so apt's numpy/scipy/matplotlib are used, not replaced.
 # * Without ROS 2: the ROS 2 Python wheels from PyPI (requirements-ros-wheels.txt).
 # Then the package itself (editable) and the test tools.
 set -euo pipefail
@@ -22,20 +24,24 @@ if [ -n "${ROS_DISTRO:-}" ]; then
 else
   "$python" -m venv "$venv"
 fi
-pip() { "$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+pip() { "$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2> >(grep -v "^WARNING: Location" >&2); }
 pip install -U pip
 if [ -z "${ROS_DISTRO:-}" ]; then
   echo "[setup] no ROS 2 sourced: installing the ROS 2 Python wheels from PyPI" >&2
   pip install -r requirements-ros-wheels.txt
 fi
-pip install -r requirements.txt -r requirements-dev.txt
-pip install -e .
+pip install --upgrade-strategy only-if-needed -r requirements.txt -r requirements-dev.txt
+pip install --upgrade-strategy only-if-needed -e .
 "$venv/bin/python" - <<'PY'
 import importlib, sys
-missing = [m for m in ("numpy", "scipy", "yaml", "mcap", "mcap_ros2", "mousai", "rclpy", "std_msgs", "sensor_msgs")
+missing = [m for m in ("numpy", "scipy", "yaml", "matplotlib", "mcap", "mcap_ros2", "rclpy", "std_msgs", "sensor_msgs")
            if importlib.util.find_spec(m) is None]
 if missing:
     sys.exit(f"[setup] missing after install: {missing}")
+import numpy, scipy, matplotlib
+for mod in (numpy, scipy, matplotlib):
+    where = "the venv" if mod.__file__.startswith(sys.prefix) else "the system (apt)"
+    print(f"[setup] {mod.__name__} {mod.__version__} from {where}", file=sys.stderr)
 PY
 echo "$want" > "$stamp"
 echo "[setup] done" >&2

@@ -6,6 +6,7 @@ from dea_ros.model import preset
 from dea_ros.solvers.continuation import frequency_sweep, sweep_independent
 from dea_ros.solvers.harmonic_balance import solve_native
 from dea_ros.solvers.inputs import SinePeriodic
+from dea_ros.solvers.mousai_backend import mousai_available
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +54,7 @@ def test_d0_choice_changes_only_the_reference():
         frequency_sweep(preset("A1"), inp, [1.0, 2.0], d0="zero")
 
 
+@pytest.mark.skipif(not mousai_available(), reason="mousai not installed (optional extra [mousai])")
 def test_mousai_sweep_agrees_with_native():
     r = sweep_independent(preset("A2"), SinePeriodic(2500.0, 1.0), [2.0, 3.0], method="mousai",
                           n_harmonics=6)
