@@ -18,15 +18,16 @@ from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import LifecycleNode, Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 
 def generate_launch_description():
     share = get_package_share_directory("dea_ros")
     config = os.path.join(share, "config")
-    membrane = LaunchConfiguration("membrane")
-    params_file = LaunchConfiguration("params_file")
+    membrane = ParameterValue(LaunchConfiguration("membrane"), value_type=str)
+    params_file = ParameterValue(LaunchConfiguration("params_file"), value_type=str)
     ns = LaunchConfiguration("namespace")
-    autostart = LaunchConfiguration("autostart")
+    autostart = ParameterValue(LaunchConfiguration("autostart"), value_type=bool)
     with open(os.path.join(share, "urdf", "dea_rig.urdf")) as f:
         robot_description = f.read()
     return LaunchDescription([
@@ -39,13 +40,15 @@ def generate_launch_description():
                               description="configure + activate the lifecycle nodes at start"),
         DeclareLaunchArgument("publish_tf", default_value="false",
                               description="robot_state_publisher with urdf/dea_rig.urdf"),
-        Node(package="dea_ros", executable="mock_hardware_node", namespace=ns, output="screen",
+        Node(package="dea_ros", executable="mock_hardware_node", name="mock_hardware_node", namespace=ns,
+             output="screen",
              parameters=[os.path.join(config, "mock_hardware.yaml"), {"params_file": membrane}]),
         LifecycleNode(package="dea_ros", executable="amplifier_node", name="amplifier_node", namespace=ns,
                       output="screen",
                       parameters=[os.path.join(config, "amplifier.yaml"),
                                   {"params_file": params_file, "autostart": autostart}]),
-        Node(package="dea_ros", executable="laser_sensor_node", namespace=ns, output="screen",
+        Node(package="dea_ros", executable="laser_sensor_node", name="laser_sensor_node", namespace=ns,
+             output="screen",
              parameters=[os.path.join(config, "laser_sensor.yaml"),
                          {"port": "/tmp/dea_ros_mock_laser", "zero_offset_m": 0.002,
                           "measuring_rate_hz": 1000.0, "poll_period_s": 0.001}]),
