@@ -76,14 +76,17 @@ def test_voltage_step_on_the_mock_rig_matches_the_model(ros_context, spin_until)
     # prediction would otherwise be interpolated across a fast transient)
     k = np.clip(np.searchsorted(tp, tm), 1, tp.size - 1)
     window &= (tp[k] - tp[k - 1]) < 2.5e-3
-    assert window.sum() > 500
+    # (model_node publishes a prediction per applied voltage: their density follows the amplifier's
+    # update rate, which a loaded machine lowers; a few hundred aligned samples judge the RMS well)
+    assert window.sum() > 200, f"only {window.sum()} measurements between two close predictions"
     err = dm[window] - np.interp(tm[window], tp, dp)
     rest = static_equilibrium(preset("A1"), 0.0).displacement_m
     assert dm.max() > rest + 50e-6  # the step moved the mass
     # the mock applies each voltage at its send time: only the 1 um laser noise should remain
     assert np.sqrt(np.mean(err**2)) < 2e-6, f"rms error {np.sqrt(np.mean(err**2)) * 1e6:.2f} um"
     print(f"samples {len(meas)}, rms error {np.sqrt(np.mean(err**2)) * 1e6:.2f} um, "
-          f"max {np.abs(err).max() * 1e6:.2f} um, wall {time.monotonic() - t_start:.1f} s, step at {t_step - t_start:.1f}")
+          f"max {np.abs(err).max() * 1e6:.2f} um, wall {time.monotonic() - t_start:.1f} s, "
+          f"step at {t_step - t_start:.1f}")
     ex.shutdown()
     for n in (mock, amp, model, peer):
         n.destroy_node()
