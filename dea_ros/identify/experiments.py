@@ -424,18 +424,78 @@ class SineSeries:
         object.__setattr__(self, "frequency_Hz", f)
 
     def whole_periods(self) -> np.ndarray:
-        """Boolean mask of the samples within the largest whole number of periods."""
-        t = self.time_s - self.time_s[0]
-        dt = float(np.median(np.diff(self.time_s)))
-        n_periods = math.floor((t[-1] + dt) * self.frequency_Hz + 1e-9)
-        if n_periods < 1:
-            raise ExperimentError(f"{self.source}: shorter than one period at {self.frequency_Hz:g} Hz")
-        return t < n_periods / self.frequency_Hz - 1e-12
+        """Boolean mask of the samples within the whole periods used by :meth:`period_weights`."""
+        w, _n, _wrap = period_weights(self.time_s, self.frequency_Hz, self.source)
+        return w > 0
 
-    def displacement_rms(self, d0_m: float) -> float:
-        """RMS of d - d0 over whole periods (eq. 21)."""
-        d = self.displacement_m[self.whole_periods()]
-        return float(np.sqrt(np.mean((d - d0_m) ** 2)))
+    def period_weights(self):
+        """(weights, number of periods, wrapped) of :func:`period_weights` for this record."""
+        return period_weights(self.time_s, self.frequency_Hz, self.source)
+
+    def displacement_rms(self, d0_m: float, noise_m: float | None = None, d0_std_m: float = 0.0) -> float:
+        """RMS of d - d0 over whole periods (eq. 21), with interpolated period boundaries.
+
+        The mean square is the integral over n whole periods of the linear interpolant of
+        (d - d0)^2 (weights of :func:`period_weights`), so a period that is not a whole number
+        of samples adds no bias. With ``noise_m`` (laser noise sigma) the noise contribution
+        sigma^2 + d0_std^2 is removed from the mean square: unbiased.
+        """
+        return rms_statistics(self, d0_m, noise_m, d0_std_m)[0]
+
+    def displacement_rms_std(self, d0_m: float, noise_m: float, d0_std_m: float = 0.0) -> float:
+        """Standard uncertainty of :meth:`displacement_rms` for white laser noise ``noise_m`` and an
+        uncertainty ``d0_std_m`` of the rest position (linearised)."""
+        return rms_statistics(self, d0_m, noise_m, d0_std_m)[1]
+
+    def noise_m(self) -> float | None:
+        """Laser noise sigma estimated from the record's third differences (see :func:`estimate_noise_m`)."""
+        return _third_difference_noise(self.displacement_m)
+
+    def classify(self, noise_m: float | None = None) -> dict:
+        """What the record shows, from the data alone: ``periodic`` (period T/2 of u^2),
+        ``period-doubled`` (period T: odd harmonics of f) or ``quasi-periodic`` (no period).
+
+        Least-squares Fourier series over the whole periods with harmonics of 2f (period T/2)
+        and of f (period T), up to 0.45 of the sampling rate; their residual RMS is compared
+        with the laser noise (``noise_m``, else estimated from the record). Period T/2 when the
+        odd harmonics add less than 5 sigma of chi-square to its fit, period T when they add
+        more and the full-period fit leaves no more than 2x the noise, quasi-periodic when
+        neither fits within 2x the noise.
+        """
+        w, n_periods, _wrap = self.period_weights()
+        keep = w > 0
+        t = self.time_s[keep] - self.time_s[0]
+        d = self.displacement_m[keep]
+        sigma = noise_m if noise_m is not None else self.noise_m()
+        sigma = max(float(sigma or 0.0), 1e-12 * max(float(np.ptp(d)), 1e-9))
+        fs = 1.0 / float(np.median(np.diff(self.time_s)))
+        top = max(2, min(60, int(0.45 * fs / self.frequency_Hz)))
+        theta = 2.0 * np.pi * self.frequency_Hz * t
+
+        def fit(harmonics):
+            cols = [np.ones_like(theta)]
+            for k in harmonics:
+                cols += [np.cos(k * theta), np.sin(k * theta)]
+            a = np.column_stack(cols)
+            coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+            res = d - a @ coef
+            return float(res @ res), a.shape[1]
+
+        rss_half, p_half = fit(range(2, top + 1, 2))
+        rss_full, p_full = fit(range(1, top + 1))
+        n = d.size
+        r_half = math.sqrt(rss_half / max(n - p_half, 1))
+        r_full = math.sqrt(rss_full / max(n - p_full, 1))
+        extra = p_full - p_half
+        chi2_gain = (rss_half - rss_full) / sigma**2
+        if r_full > 2.0 * sigma:
+            kind = "quasi-periodic"
+        elif chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra):
+            kind = "period-doubled"
+        else:
+            kind = "periodic"
+        return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "noise_m": sigma,
+                "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
@@ -466,6 +526,79 @@ class SineSeries:
                 f"{harmonics} harmonics (projection peaks at {np.max(u):.0f} V, data at {peak:.0f} V); "
                 "record more samples per period")
         return SampledPeriodic(u, self.frequency_Hz)
+
+
+def _interpolant_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Weights w with sum(w f) = integral over [a, b] of the linear interpolant of (t, f)."""
+    w = np.zeros(t.size)
+    left, right = t[:-1], t[1:]
+    c = np.clip(a, left, right)
+    e = np.clip(b, left, right)
+    h = right - left
+    use = e > c
+    w[:-1] += np.where(use, ((right - c) ** 2 - (right - e) ** 2) / (2.0 * h), 0.0)
+    w[1:] += np.where(use, ((e - left) ** 2 - (c - left) ** 2) / (2.0 * h), 0.0)
+    return w
+
+
+def period_weights(time_s, frequency_Hz: float, source: str = "sine record", max_gap_samples: float = 3.0):
+    """Weights (s) of the samples for the integral over the largest whole number n of periods
+    T = 1/f from the first sample: (weights, n, wrapped).
+
+    The window [t0, t0 + n T] is integrated on the linear interpolant of the samples; its end
+    falls between two samples in general (interpolated boundary). When the record stops short of
+    t0 + n T by at most ``max_gap_samples`` sample intervals (a record of floor(n T f_s) samples,
+    or one sample fewer), the periodic steady state supplies the missing end: the integral over
+    [t_last, t0 + n T] equals the one over [t_last - T, t0 + (n-1) T], inside the record, so a
+    record one sample short does not lose a whole period (``wrapped``). The trapezoidal end
+    corrections of the pieces cancel by periodicity: the mean square of a periodic record is
+    accurate to ~1e-6 whatever the number of samples per period.
+    Raises :class:`ExperimentError` for a record shorter than one period.
+    """
+    t = np.asarray(time_s, float) - float(time_s[0])
+    dt = float(np.median(np.diff(t)))
+    period = 1.0 / float(frequency_Hz)
+    n = int(math.floor((t[-1] + max_gap_samples * dt * (1.0 + 1e-9)) / period + 1e-12))
+    if n < 1 or (n == 1 and t[-1] < period * (1.0 - 1e-9) and t[-1] - period < -dt * max_gap_samples):
+        raise ExperimentError(f"{source}: shorter than one period at {frequency_Hz:g} Hz")
+    end = n * period
+    if end <= t[-1]:
+        return _interpolant_weights(t, 0.0, end), n, False
+    if t[-1] - period < 0.0:
+        raise ExperimentError(f"{source}: shorter than one period at {frequency_Hz:g} Hz")
+    w = _interpolant_weights(t, 0.0, t[-1]) + _interpolant_weights(t, t[-1] - period, end - period)
+    return w, n, True
+
+
+def rms_statistics(series: "SineSeries", d0_m: float, noise_m: float | None = None,
+                   d0_std_m: float = 0.0) -> tuple:
+    """(d_rms, its standard uncertainty or None) of a sampled record over whole periods (eq. 21).
+
+    See :meth:`SineSeries.displacement_rms`. Uncertainty (``noise_m`` given): white noise on
+    every sample and the uncertainty of d0, propagated linearly through the weighted mean square.
+    """
+    w, _n, _wrap = period_weights(series.time_s, series.frequency_Hz, series.source)
+    total = float(np.sum(w))
+    dev = series.displacement_m - float(d0_m)
+    ms = float(w @ (dev * dev)) / total
+    if noise_m is not None:
+        ms -= float(noise_m) ** 2 + float(d0_std_m) ** 2
+    rms = math.sqrt(max(ms, 0.0))
+    if noise_m is None or rms <= 0:
+        return rms, None
+    grad = w * dev / (total * rms)
+    mean_dev = float(w @ dev) / total
+    var = float(noise_m) ** 2 * float(grad @ grad) + (mean_dev / rms) ** 2 * float(d0_std_m) ** 2
+    return rms, math.sqrt(var)
+
+
+def _third_difference_noise(d, min_samples: int = 20) -> float | None:
+    d = np.asarray(d, float)
+    if d.size < min_samples:
+        return None
+    d3 = np.diff(d, 3)
+    mad = float(np.median(np.abs(d3 - np.median(d3))))
+    return 1.4826 * mad / math.sqrt(20.0)
 
 
 @dataclass(frozen=True)
@@ -834,12 +967,7 @@ def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
     insensitive to the response itself. A robust spread (1.4826 x median absolute deviation)
     ignores the few samples around the voltage step. None for fewer than ``min_samples`` samples.
     """
-    d = step.displacement_m
-    if d.size < min_samples:
-        return None
-    d3 = np.diff(d, 3)
-    mad = float(np.median(np.abs(d3 - np.median(d3))))
-    return 1.4826 * mad / math.sqrt(20.0)
+    return _third_difference_noise(step.displacement_m, min_samples)
 
 
 def rest_warning(step: StepData, noise_m: float | None) -> str | None:
@@ -928,4 +1056,5 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
     return out
 
 
-__all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings"]
+__all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings", "period_weights",
+            "rms_statistics"]
