@@ -94,6 +94,7 @@ __all__ = [
     "CURVATURE_UNIT_PA",
     "resolve_weights",
     "periodic_rms_gradient",
+    "point_solution",
 ]
 
 LOG = logging.getLogger("dea_ros.identify")
@@ -127,6 +128,15 @@ class FrequencyPoint:
     source: str
     measured_std_m: float | None = None
     periodic_input: object = None  # the applied waveform (SineData.inputs); None: the nominal sine
+    #: the response the record shows and is fitted with: "periodic" (period of u^2, T/2) or
+    #: "period-doubled" (period T; the full-period harmonic balance on the period-doubled branch)
+    kind: str = "periodic"
+    guess: object = None           # a collocation state on the matching branch (seeds harmonic balance)
+
+    @property
+    def excitation(self):
+        """The periodic input of eq. 24 (the applied waveform, or the nominal sine)."""
+        return self.periodic_input or SinePeriodic(self.amplitude_V, self.frequency_Hz)
 
 
 def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
@@ -314,12 +324,7 @@ class DynamicObjective:
         return res, rows, sims
 
     def _hbm_solve(self, params, k: int, point: FrequencyPoint) -> PeriodicSolution:
-        sine = point.periodic_input or SinePeriodic(point.amplitude_V, point.frequency_Hz)
-        guess = self._hb_guess.get(k)
-        try:
-            sol = solve_native(params, sine, self.n_harmonics, x_guess=guess, stability=False)
-        except HarmonicBalanceError:
-            sol = solve_native(params, sine, self.n_harmonics, stability=False)  # cold (homotopy)
+        sol = point_solution(params, point, self.n_harmonics, self._hb_guess.get(k))
         self._hb_guess[k] = sol.state
         return sol
 
@@ -427,6 +432,32 @@ class DynamicObjective:
 
 
 # --------------------------------------------------------------------------- sensitivities
+def point_solution(params: MembraneParameters, point: FrequencyPoint, n_harmonics: int,
+                   guess=None) -> PeriodicSolution:
+    """The harmonic-balance solution a frequency point is fitted with (its ``kind``).
+
+    ``periodic``: N harmonics of 2f (period T/2), seeded from ``guess`` or the point's branch
+    state (so a coexisting branch is kept). ``period-doubled``: 2N harmonics of f on the full
+    period (the same spectral reach), seeded from a state of the period-doubled branch; a solve
+    that falls back onto the symmetric orbit raises :class:`HarmonicBalanceError`.
+    """
+    seed = guess if guess is not None else point.guess
+    if point.kind == "period-doubled":
+        if seed is None:
+            raise HarmonicBalanceError(f"{point.frequency_Hz:g} Hz: no period-doubled orbit to start from")
+        sol = solve_native(params, point.excitation, 2 * n_harmonics, x_guess=seed, use_symmetry=False,
+                           stability=False)
+        if sol.odd_harmonic_ratio() < 1e-3:
+            raise HarmonicBalanceError(f"{point.frequency_Hz:g} Hz: the period-doubled orbit vanished "
+                                       "(these parameters have no period doubling there)")
+        return sol
+    try:
+        return solve_native(params, point.excitation, n_harmonics, x_guess=seed, stability=False)
+    except HarmonicBalanceError:
+        return solve_native(params, point.excitation, n_harmonics, stability=False)  # cold (homotopy)
+
+
+
 def periodic_rms_gradient(params: MembraneParameters, sol: PeriodicSolution, d0: float, dd0=None,
                           directions=None, permittivity: bool = False) -> tuple[float, np.ndarray]:
     """d_rms (eq. 21) of a harmonic-balance solution and its exact gradient.

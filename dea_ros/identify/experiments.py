@@ -33,10 +33,14 @@ One folder per data set::
         voltage_hold: zoh        # optional: zoh (DAQ output, default) or linear
         mass_kg: 0.003           # optional: overrides the top-level mass for this experiment
       - kind: sine               # columns frequency_Hz, amplitude_V, d_rms_m[, d0_m, d_rms_std_m]
-        file: sine_rms.csv       #   d_rms by eq. 21 around the rest position d0; d_rms_std_m its
-                                 #   standard uncertainty (needed for weights="noise")
-        series:                  # optional sampled records: time_s, voltage_V, displacement_m
-          - {frequency_Hz: 2.0, file: sine_2Hz.csv}
+        file: sine_rms.csv       #   d_rms by eq. 21 around the rest position d0 over whole periods
+                                 #   (laser noise removed, see rms_statistics); d_rms_std_m its
+                                 #   standard uncertainty (statistical weights of the joint fit)
+        waveform: sine           # the applied voltage: sine, u = U sin(2 pi f t) (the paper), or
+                                 #   abs_sine, u = |U sin(2 pi f t)| (a unipolar amplifier, the rig);
+                                 #   U = amplitude_V. Both give the same u^2, all the model sees (eq. 6)
+        series:                  # optional sampled records: time_s, voltage_V (the applied u(t)),
+          - {frequency_Hz: 2.0, file: sine_2Hz.csv}     # displacement_m, from phase 0 of the sine
 
 CSV files: comma separated, ``#`` starts a comment line, the first other line
 is the header. Every column name ends with its unit (``_s``, ``_V``, ``_m``,
@@ -64,6 +68,7 @@ from ..model.parameters import PRESET_NAMES, MembraneParameters, ParameterError,
 __all__ = [
     "FORMAT",
     "KINDS",
+    "WAVEFORMS",
     "GEOMETRY_FIELDS",
     "ExperimentError",
     "StaticData",
@@ -79,6 +84,8 @@ __all__ = [
 
 FORMAT = "dea_ros.experiments/1"
 KINDS = ("static", "step", "sine")
+#: Waveforms of the sine experiments: U sin(2 pi f t) or |U sin(2 pi f t)| (same u^2).
+WAVEFORMS = ("sine", "abs_sine")
 GEOMETRY_FIELDS = ("prestretch", "thickness_m", "plate_radius_m", "electrode_width_m")
 _SI_UNITS = {"time": "s", "voltage": "V", "displacement": "m", "mass": "kg", "frequency": "Hz"}
 
@@ -457,10 +464,10 @@ class SineSeries:
 
         Least-squares Fourier series over the whole periods with harmonics of 2f (period T/2)
         and of f (period T), up to 0.45 of the sampling rate; their residual RMS is compared
-        with the laser noise (``noise_m``, else estimated from the record). Period T/2 when the
-        odd harmonics add less than 5 sigma of chi-square to its fit, period T when they add
-        more and the full-period fit leaves no more than 2x the noise, quasi-periodic when
-        neither fits within 2x the noise.
+        with the laser noise (``noise_m``, else estimated from the record). Period T when the
+        odd harmonics are significant (more than 5 sigma of chi-square and an RMS above 3x the
+        noise) and the full-period fit leaves no more than 2x the noise; quasi-periodic when
+        that fit leaves more; period T/2 otherwise.
         """
         w, n_periods, _wrap = self.period_weights()
         keep = w > 0
@@ -488,14 +495,17 @@ class SineSeries:
         r_full = math.sqrt(rss_full / max(n - p_full, 1))
         extra = p_full - p_half
         chi2_gain = (rss_half - rss_full) / sigma**2
+        odd_rms = math.sqrt(max(rss_half - rss_full, 0.0) / n)
         if r_full > 2.0 * sigma:
             kind = "quasi-periodic"
-        elif chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra):
+        elif chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra) and odd_rms > 3.0 * sigma:
+            # odd harmonics well above the noise (aliased even harmonics near the Nyquist
+            # frequency stay at the noise level)
             kind = "period-doubled"
         else:
             kind = "periodic"
-        return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "noise_m": sigma,
-                "periods": n_periods, "harmonics": top}
+        return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "odd_rms_m": odd_rms,
+                "noise_m": sigma, "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
@@ -559,14 +569,18 @@ def period_weights(time_s, frequency_Hz: float, source: str = "sine record", max
     dt = float(np.median(np.diff(t)))
     period = 1.0 / float(frequency_Hz)
     n = int(math.floor((t[-1] + max_gap_samples * dt * (1.0 + 1e-9)) / period + 1e-12))
-    if n < 1 or (n == 1 and t[-1] < period * (1.0 - 1e-9) and t[-1] - period < -dt * max_gap_samples):
+    if n < 1:
         raise ExperimentError(f"{source}: shorter than one period at {frequency_Hz:g} Hz")
     end = n * period
     if end <= t[-1]:
         return _interpolant_weights(t, 0.0, end), n, False
-    if t[-1] - period < 0.0:
-        raise ExperimentError(f"{source}: shorter than one period at {frequency_Hz:g} Hz")
-    w = _interpolant_weights(t, 0.0, t[-1]) + _interpolant_weights(t, t[-1] - period, end - period)
+    w = _interpolant_weights(t, 0.0, t[-1])
+    if t[-1] - period >= 0.0:
+        w += _interpolant_weights(t, t[-1] - period, end - period)
+    else:  # a single period: close it with the periodic trapezoid d(t0 + T) = d(t0)
+        gap = end - t[-1]
+        w[-1] += 0.5 * gap
+        w[0] += 0.5 * gap
     return w, n, True
 
 
@@ -616,6 +630,8 @@ class SineData:
     #: and the evaluation then use the applied waveform instead of the nominal sine
     inputs: tuple = ()
     d_rms_std_m: np.ndarray | None = None
+    #: the applied voltage: "sine" (U sin wt) or "abs_sine" (|U sin wt|); see WAVEFORMS
+    waveform: str = "sine"
 
     def __post_init__(self):
         src = self.source
@@ -662,6 +678,9 @@ class SineData:
         object.__setattr__(self, "inputs", tuple(self.inputs))
         if self.inputs and len(self.inputs) != n:
             raise ExperimentError(f"{src}: {len(self.inputs)} inputs for {n} frequencies")
+        if self.waveform not in WAVEFORMS:
+            raise ExperimentError(f"{src}: waveform must be one of {WAVEFORMS} (U sin wt or |U sin wt|), "
+                                  f"got {self.waveform!r}")
 
     @property
     def n_frequencies(self) -> int:
@@ -870,9 +889,14 @@ def load_experiment_set(folder: str | Path) -> ExperimentSet:
                     _check_time(scols["time_s"], "time_s", str(spath), scols["_lines"])
                     series.append(SineSeries(float(item["frequency_Hz"]), scols["time_s"], scols["voltage_V"],
                                              scols["displacement_m"], source=str(spath)))
+                waveform = entry.get("waveform", "sine")
+                if waveform not in WAVEFORMS:
+                    raise _manifest_error(manifest, f"{where}.waveform: {waveform!r} is not one of {WAVEFORMS} "
+                                                    "(sine: U sin(2 pi f t); abs_sine: |U sin(2 pi f t)|)")
                 sines.append(SineData(cols["frequency_Hz"], cols["amplitude_V"], cols["d_rms_m"],
                                       mass_kg=exp_mass, d0_m=cols.get("d0_m"), series=tuple(series),
-                                      source=str(path), d_rms_std_m=cols.get("d_rms_std_m")))
+                                      source=str(path), d_rms_std_m=cols.get("d_rms_std_m"),
+                                      waveform=waveform))
         except ParameterError as exc:  # pragma: no cover - defensive
             raise ExperimentError(f"{path}: {exc}") from None
     return ExperimentSet(
@@ -930,9 +954,11 @@ def write_experiment_set(experiments: ExperimentSet, folder: str | Path) -> Path
         if s.d_rms_std_m is not None:
             cols["d_rms_std_m"] = s.d_rms_std_m
         write_csv_columns(folder / name, cols,
-                          comment="frequency response: RMS of d - d0 over whole periods (eq. 21); "
-                                  "d_rms_std_m: its standard uncertainty (optional)")
-        entry: dict[str, Any] = {"kind": "sine", "file": name}
+                          comment="frequency response: RMS of d - d0 over whole periods (eq. 21, interpolated "
+                                  "period boundaries, laser noise removed); d_rms_std_m: its standard uncertainty "
+                                  f"(optional); excitation u = {'|U sin(2 pi f t)|' if s.waveform == 'abs_sine' else 'U sin(2 pi f t)'}"
+                                  ", U = amplitude_V")
+        entry: dict[str, Any] = {"kind": "sine", "file": name, "waveform": s.waveform}
         if s.mass_kg != experiments.mass_kg:
             entry["mass_kg"] = s.mass_kg
         series = []

@@ -78,6 +78,9 @@ def periodic_interpolation_matrix(m: int, phases) -> np.ndarray:
     """Matrix P with P @ x_samples = trigonometric interpolant at ``phases`` (m odd, periodic sinc)."""
     theta_k = 2.0 * np.pi * np.arange(m) / m
     delta = np.asarray(phases, dtype=float)[:, None] - theta_k[None, :]
+    # reduce to [-pi, pi): near 2 pi the kernel sin(m delta / 2) / (m sin(delta / 2)) would divide
+    # two rounding errors (a phase 1e-13 short of a whole period gave O(1) errors)
+    delta = np.mod(delta + np.pi, 2.0 * np.pi) - np.pi
     s = np.sin(0.5 * delta)
     small = np.abs(s) < 1e-14
     with np.errstate(divide="ignore", invalid="ignore"):
