@@ -29,9 +29,9 @@ fitted only from the large oscillations near resonance; so is the next term, sig
 1.5 mm RMS (s - 1 up to 0.03) and 0.03 um uncertainty of an RMS value a wrong third derivative
 alone moves the response near the peak by 40 standard deviations, so it is fitted with the
 curvature (a nuisance parameter: the intervals of the others allow for it). sigma_h''(1) is
-reported as identified when its 95 % interval is within +-``curvature_rel_ci_limit`` (25 %) of
-its value; otherwise the result says so (``curvature_identified`` False) and the caller writes
-the base value. The four combinations are matched exactly by the (beta, gamma) closest to the
+reported as identified when its 95 % interval is within +-``curvature_rel_ci_limit`` (50 %) of
+its value; otherwise the result says so (``curvature_identified`` False) and the caller decides
+(the pipeline writes it flagged "poorly determined" while its sign is known, else the base value). The four combinations are matched exactly by the (beta, gamma) closest to the
 base parameters' (or, without them, to the start's), as in the static fit's representation.
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError", "CU
            "JOINT_NAMES"]
 
 #: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
-CURVATURE_REL_CI_LIMIT = 0.25
+CURVATURE_REL_CI_LIMIT = 0.5
 #: Names of the joint parameters (the curvature terms sigma_h''(1), sigma_h'''(1) only when fitted).
 JOINT_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa", "eps_r", "k1_Pa",
                "eta1_Pa_s", "eta2_Pa_s")
@@ -127,10 +127,13 @@ class JointObjective:
         # four combinations matched exactly, the two remaining Ogden directions held closest to the
         # base parameters (or to the start's representation without base parameters)
         self.rep = OgdenRepresentation(start.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
-        self.fit_curvature = bool(fit_curvature)
+        self.fit_curvature = fit_curvature
         self.combos0 = EXTENDED_COMBINATION_MATRIX @ start_bg
-        self.stress_index = [0, 1, 2, 3] if fit_curvature else [0, 1]
-        self.names = tuple(n for i, n in enumerate(JOINT_NAMES) if i not in (2, 3) or fit_curvature)
+        if fit_curvature == "third":       # sigma_h''(1) held at the start's value, sigma_h'''(1) free
+            self.stress_index = [0, 1, 3]
+        else:
+            self.stress_index = [0, 1, 2, 3] if fit_curvature else [0, 1]
+        self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
         gain = self.rep.gain                                         # (6, 4)
         self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
         self.solvers = [TransientCollocation(s.time_s, s.voltage_V, hold=s.voltage_hold) for s in self.steps]
@@ -277,7 +280,8 @@ def fit_joint(
 
     ``points`` are the frequency points with their ``kind`` (periodic or period-doubled; leave the
     quasi-periodic ones out) and ``measured_std_m`` (None: estimated from the residuals of a first
-    pass). ``fit_curvature``: include sigma_h''(1) (when sine data exist). ``curvature_fallback_Pa``:
+    pass). ``fit_curvature``: include sigma_h''(1) and sigma_h'''(1) (when sine data exist); "third":
+    only sigma_h'''(1), sigma_h''(1) held at the start's value. ``curvature_fallback_Pa``:
     the value the caller will write when it is not identified (reported only).
     """
     t0 = time.perf_counter()
@@ -289,7 +293,8 @@ def fit_joint(
     warnings = []
     if estimated_rms_sigma:
         point_s = [s if s is not None else 1e-7 for s in point_s]
-    fit_curvature = bool(fit_curvature and points)
+    if not points:
+        fit_curvature = False
     objective = JointObjective(start, static, steps, points, static_sigma_m, step_s, point_s,
                                prior_beta_gamma, fit_curvature, n_harmonics)
     lo, hi = objective.bounds()
@@ -336,7 +341,7 @@ def fit_joint(
                                  log_parameters=[False] * (q + 1) + [True] * 3, context="joint fit")
     warnings += stats.warnings
     identified = False
-    if fit_curvature:
+    if "sigma_h''(1)_Pa" in objective.names:
         k = objective.names.index("sigma_h''(1)_Pa")
         identified = bool(np.isfinite(stats.relative_ci[k]) and stats.relative_ci[k] <= curvature_rel_ci_limit)
     if not sol.success:
@@ -346,7 +351,8 @@ def fit_joint(
         warnings.append(f"joint refinement: {', '.join(at_bound)} ended at the search bound")
     dof = max(res.size - len(values), 1)
     return JointFitResult(
-        parameters=params, statistics=stats, names=objective.names, curvature_fitted=fit_curvature,
+        parameters=params, statistics=stats, names=objective.names,
+        curvature_fitted="sigma_h''(1)_Pa" in objective.names,
         curvature_identified=identified,
         curvature_fallback_Pa=float(curvature_fallback_Pa) if curvature_fallback_Pa is not None else float("nan"),
         cost=float(res @ res), dof=dof, block_chi2=details["blocks"],

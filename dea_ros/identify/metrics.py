@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+from scipy import stats as stats_module
 
 __all__ = [
     "ParameterStatistics",
@@ -29,6 +30,7 @@ __all__ = [
     "measured_resonance_peak",
     "PEAK_SPACING_LIMIT",
     "static_errors_um",
+    "linear_combination_ci",
     "RELATIVE_CI_LIMIT",
     "CORRELATION_LIMIT",
 ]
@@ -172,6 +174,29 @@ def parameter_statistics(
         correlation=corr, residual_std=math.sqrt(s2), dof=0 if no_dof else dof, rank=rank,
         singular_values=sv, confidence=confidence, warnings=warnings,
     )
+
+
+def linear_combination_ci(stats: ParameterStatistics, weights: dict):
+    """(value, CI low, CI high, relative half-width) of sum_i w_i p_i over fitted parameters
+    (``weights``: name -> w_i), from their linearised covariance, at the statistics' confidence.
+    None when a name is not among the fitted parameters (or a parameter was fitted in log)."""
+    if stats is None or any(n not in stats.names for n in weights):
+        return None
+    idx = [stats.names.index(n) for n in weights]
+    w = np.array(list(weights.values()), float)
+    se = np.asarray(stats.std_error, float)[idx]
+    if not np.all(np.isfinite(se)):
+        return (float(w @ np.asarray(stats.values, float)[idx]), -np.inf, np.inf, float("inf"))
+    cov = np.asarray(stats.correlation, float)[np.ix_(idx, idx)] * np.outer(se, se)
+    value = float(w @ np.asarray(stats.values, float)[idx])
+    t = float(stats_t(stats))
+    half = float(t * math.sqrt(max(float(w @ cov @ w), 0.0)))
+    return value, value - half, value + half, (half / abs(value) if value != 0 else float("inf"))
+
+
+def stats_t(stats: ParameterStatistics) -> float:
+    """The t quantile of the statistics' confidence level and degrees of freedom."""
+    return float(stats_module.t.ppf(0.5 + stats.confidence / 2.0, max(stats.dof, 1)))
 
 
 def _trapezoid(y, x) -> float:

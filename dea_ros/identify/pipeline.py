@@ -40,7 +40,7 @@ from ..solvers.transient import TransientCollocation
 from .dynamic_fit import DynamicFitResult, FrequencyPoint, fit_dynamic, point_solution, select_fit_frequencies
 from .experiments import ExperimentError, ExperimentSet, data_warnings, estimate_noise_m
 from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
-from .metrics import measured_resonance_peak, static_errors_um, step_error_indices
+from .metrics import linear_combination_ci, measured_resonance_peak, static_errors_um, step_error_indices
 from .static_fit import (
     EXTENDED_COMBINATION_MATRIX,
     OgdenRepresentation,
@@ -75,6 +75,7 @@ class IdentificationResult:
     #: sigma_h''(1): True identified (written), False not identified (base value written), None not fitted
     curvature_identified: bool | None = None
     curvature_written_Pa: float | None = None
+    curvature_status: str = "not fitted"   # "identified", "poorly determined", "not identified", "not fitted"
 
     @property
     def statistics(self):
@@ -84,26 +85,46 @@ class IdentificationResult:
         return self.dynamic.statistics if self.dynamic is not None else None
 
     def identification_metadata(self) -> dict:
-        """What was identified and how (written next to the parameters in params.yaml)."""
+        """What was identified and how (written next to the parameters in params.yaml).
+
+        The hyperelastic stress is given at lambda_r = 1 with derivatives w.r.t. lambda_r as eq. 10 is
+        written (the fits use s = lambda_r^2: d/dlambda = 2 d/ds, d2/dlambda2 = 2 d/ds + 4 d2/ds2).
+        """
         c = stress_combinations(self.parameters.beta_Pa, self.parameters.gamma_Pa)
+        stats = self.statistics
+        s_stats = stats if (stats is not None and "sigma_h(1)_Pa" in stats.names) else (
+            self.static.statistics if self.static is not None else None)
+
+        def ci(st, weights):
+            v = linear_combination_ci(st, weights)
+            return None if v is None or not np.isfinite(v[3]) else [float(v[1]), float(v[2])]
+
         meta = {
             "method": "joint refinement (statistical weights)" if self.joint is not None else
                       f"two-stage (paper), weights {self.options.get('weights')}",
-            "derivatives": "sigma_h'(1), sigma_h''(1): derivatives of eq. 10 w.r.t. lambda_r at lambda_r = 1",
+            "stress_derivatives": "w.r.t. lambda_r at lambda_r = 1 (eq. 10)",
             "sigma_h(1)_Pa": float(c[0]),
-            "dsigma_h/dlambda(1)_Pa": float(2.0 * c[1]),
-            "d2sigma_h/dlambda2(1)_Pa": (float(2.0 * c[1] + 4.0 * c[2]) if self.curvature_identified
-                                         else "not identified"),
+            "sigma_h(1)_Pa_ci95": ci(s_stats, {"sigma_h(1)_Pa": 1.0}),
+            "dsigma_h_dlambda(1)_Pa": float(2.0 * c[1]),
+            "dsigma_h_dlambda(1)_Pa_ci95": ci(s_stats, {"sigma_h'(1)_Pa": 2.0}),
         }
-        if self.curvature_identified is False:
-            meta["d2sigma_h/dlambda2(1)_note"] = (
-                "not identified by the data: beta/gamma carry the base value "
-                f"{2.0 * c[1] + 4.0 * c[2]:.6g} Pa (from the base parameters or the representation), "
-                "not a fitted one")
-        stats = self.statistics
-        if stats is not None:
-            meta["confidence_intervals_95"] = {
-                n: [float(lo), float(hi)] for n, lo, hi in zip(stats.names, stats.ci_low, stats.ci_high)}
+        if self.curvature_identified:
+            meta["d2sigma_h_dlambda2(1)_Pa"] = float(2.0 * c[1] + 4.0 * c[2])
+            meta["d2sigma_h_dlambda2(1)_Pa_ci95"] = ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0})
+            meta["d2sigma_h_dlambda2(1)_status"] = self.curvature_status
+        else:
+            meta["d2sigma_h_dlambda2(1)_Pa"] = "not identified"
+            meta["d2sigma_h_dlambda2(1)_written_Pa"] = float(2.0 * c[1] + 4.0 * c[2])
+            meta["d2sigma_h_dlambda2(1)_note"] = (
+                "not determined by the data: beta/gamma carry the base value (base parameters file, or the "
+                "representation of eqs. 8-9 without one), not a fitted one")
+        for name in ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s"):
+            st = stats if (stats is not None and name in stats.names) else (
+                self.static.statistics if (self.static is not None and name == "eps_r") else None)
+            if st is not None and name in st.names:
+                i = st.names.index(name)
+                if np.isfinite(st.relative_ci[i]):
+                    meta[f"{name}_ci95"] = [float(st.ci_low[i]), float(st.ci_high[i])]
         left_out = [c_["frequency_Hz"] for c_ in self.classification if c_.get("used") == "left out"]
         if left_out:
             meta["left_out_frequencies_Hz"] = [float(f) for f in left_out]
@@ -178,9 +199,9 @@ def _jsonable(obj):
 
 
 # --------------------------------------------------------------------------- classification
-def _sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int):
+def _sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
     return frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), np.unique(np.asarray(freqs, float)),
-                           n_harmonics=n_harmonics)
+                           n_harmonics=n_harmonics, realised=realised)
 
 
 def _candidates(sweep, f: float) -> list:
@@ -203,7 +224,8 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
         series_by_f = {round(s.frequency_Hz, 9): s for s in sine.series}
         for a in np.unique(sine.amplitude_V):
             sel = np.nonzero(sine.amplitude_V == a)[0]
-            sweep = _sweep_for(p, float(a), sine.frequency_Hz[sel], n_harmonics)
+            # the kinds only: no integration of quasi-periodic responses here
+            sweep = _sweep_for(p, float(a), sine.frequency_Hz[sel], n_harmonics, realised=False)
             by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
             for k in sel:
                 f = float(sine.frequency_Hz[k])
@@ -327,7 +349,7 @@ def series_model(params: MembraneParameters, series, amplitude_V: float, n_harmo
 
 
 def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics: int = 8,
-             sweep_points: int = 400, classification: list | None = None) -> tuple[dict, dict, list]:
+             sweep_points: int = 120, classification: list | None = None) -> tuple[dict, dict, list]:
     """Metrics and plot curves of ``params`` against every experiment (accurate solvers).
 
     ``classification`` (from :func:`classify_records` with these parameters; computed when
@@ -388,7 +410,8 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
     if step_metrics:
         metrics["steps"] = step_metrics
     # ---- frequency response (Fig. 7-8 right, Table IV)
-    if experiments.sines and classification is None:
+    own_classification = bool(experiments.sines and classification is None)
+    if own_classification:
         classification = classify_records(params, experiments, n_harmonics, noise)
     by_rec = {(c["source"], c["index"]): c for c in (classification or [])}
     freq_metrics = []
@@ -448,7 +471,7 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
             z = err[ok] / (sine.d_rms_std_m[ok] * 1e6)
             entry["normalised_rms_error"] = float(np.sqrt(np.mean(z**2)))
         left = f[[u == "left out" for u in used]]
-        if left.size:
+        if left.size and own_classification:
             reasons = {c["frequency_Hz"]: c.get("reason", "") for c in (classification or [])
                        if c["source"] == sine.source and c["used"] == "left out"}
             warnings.append(f"{sine.source}: not compared with a periodic model response at "
@@ -492,6 +515,40 @@ def _curvature_fallback(static: StaticFitResult | None, params: MembraneParamete
     if static is not None and static.prior_beta_gamma is not None:
         return np.asarray(static.prior_beta_gamma, float)
     return np.r_[params.beta_Pa, params.gamma_Pa]
+
+
+def _marginal_statistics(held, free):
+    """Statistics of a fit with the curvature held, with every interval at least as wide as in the fit
+    with it free (the marginal uncertainty, which allows for the unknown curvature), around the held
+    fit's values."""
+    from dataclasses import replace as dc_replace
+
+    lo, hi = np.array(held.ci_low, float), np.array(held.ci_high, float)
+    se, rel = np.array(held.std_error, float), np.array(held.relative_ci, float)
+    vals = np.asarray(held.values, float)
+    for i, name in enumerate(held.names):
+        if name not in free.names:
+            continue
+        j = free.names.index(name)
+        if not (free.relative_ci[j] > rel[i]):
+            continue
+        rel[i] = free.relative_ci[j]
+        se[i] = max(se[i], free.std_error[j] * abs(vals[i] / free.values[j]) if free.values[j] else free.std_error[j])
+        if free.ci_low[j] > 0 and abs(np.log(free.ci_high[j] / free.values[j]) + np.log(free.ci_low[j] / free.values[j])) < 1e-9:
+            f_hi = free.ci_high[j] / free.values[j]           # a log parameter: multiplicative interval
+            lo[i], hi[i] = vals[i] / f_hi, vals[i] * f_hi
+        else:
+            half = 0.5 * (free.ci_high[j] - free.ci_low[j])
+            lo[i], hi[i] = vals[i] - half, vals[i] + half
+    return dc_replace(held, ci_low=lo, ci_high=hi, std_error=se, relative_ci=rel)
+
+
+def _set_combinations(params: MembraneParameters, combos, prior_bg) -> MembraneParameters:
+    """``params`` with (beta, gamma) matching the four combinations ``combos`` (eq. 10, in s)."""
+    prior = np.r_[params.beta_Pa, params.gamma_Pa] if prior_bg is None else np.asarray(prior_bg, float)
+    rep = OgdenRepresentation(params.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
+    bg = rep.beta_gamma(np.asarray(combos, float))
+    return params.replace(beta_Pa=tuple(float(v) for v in bg[:3]), gamma_Pa=tuple(float(v) for v in bg[3:]))
 
 
 def _with_base_curvature(params: MembraneParameters, base_bg) -> MembraneParameters:
@@ -570,6 +627,7 @@ def identify(
     joint = None
     classification: list = []
     curvature_identified = None
+    curvature_status = "not fitted"
     curvature_written = None
     if experiments.steps or experiments.sines:
         t0 = time.perf_counter()
@@ -648,21 +706,59 @@ def identify(
                 warnings += joint.warnings
                 if joint.curvature_fitted:
                     k = joint.names.index("sigma_h''(1)_Pa")
-                    rel = joint.statistics.relative_ci[k]
-                    curvature_identified = joint.curvature_identified
-                    if not curvature_identified:
-                        params = _with_base_curvature(params, fallback)
+                    rel = float(joint.statistics.relative_ci[k])
+                    if rel <= CURVATURE_REL_CI_LIMIT:
+                        curvature_identified, curvature_status = True, "identified"
+                    elif rel < 1.0:
+                        curvature_identified, curvature_status = True, "poorly determined"
+                        warnings.append(
+                            f"sigma_h''(1) is poorly determined by these data (95 % interval +-{100 * rel:.0f} % of its "
+                            "value, sign known): written as fitted, flagged in params.yaml; records near the "
+                            "resonance peak (large amplitude) would pin it down")
+                    else:
+                        curvature_identified, curvature_status = False, "not identified"
+                        # sigma_h''(1) held at the base value; sigma_h'''(1) (with which it trades off at
+                        # these amplitudes) stays free, so the data keep their fit and the other parameters
+                        # their values; the reported values and intervals are those of this fit
+                        base_c2 = float(EXTENDED_COMBINATION_MATRIX[2] @ fallback)
+                        c_free = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
+                        start = _set_combinations(params, [c_free[0], c_free[1], base_c2, c_free[3]],
+                                                  static.prior_beta_gamma)
+                        chi_free = joint.cost
+                        pts_now = _points_from(classification, experiments)
+                        # first both curvature terms at the base values: when the data accept them (chi-square
+                        # within 9 of the free fit) that is the written law
+                        held = fit_joint(_with_base_curvature(params, fallback), experiments.all_static(),
+                                         experiments.steps, pts_now, _static_sigma(static), noise_m=noise,
+                                         prior_beta_gamma=static.prior_beta_gamma, fit_curvature=False,
+                                         curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics, progress=progress)
+                        how = "both curvature terms at the base values"
+                        if held.cost - chi_free > 9.0:
+                            held = fit_joint(start, experiments.all_static(), experiments.steps, pts_now,
+                                             _static_sigma(static), noise_m=noise,
+                                             prior_beta_gamma=static.prior_beta_gamma, fit_curvature="third",
+                                             curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics,
+                                             progress=progress)
+                            how = "sigma_h''(1) at the base value, sigma_h'''(1) refitted (the data reject both at base)"
+                        written = held.parameters
+                        held.statistics = _marginal_statistics(held.statistics, joint.statistics)
+                        refit_note = (f" Written with {how}: chi-square {held.cost - chi_free:+.3g} against the free "
+                                      "fit; the 95 % intervals keep the widths of the free fit (they allow for the "
+                                      "unknown curvature).")
+                        free_joint = joint
+                        joint = held
+                        joint.warnings = free_joint.warnings + [w for w in held.warnings if w not in free_joint.warnings]
+                        params = written
                         near = [c for c in classification if c["used"] != "left out"
                                 and c["measured_rms_m"] > 0.5 * max(x["measured_rms_m"] for x in classification)]
                         hint = ("" if len(near) >= 3 else
                                 " Records near the resonance peak (large amplitude) would determine it.")
                         warnings.append(
                             "sigma_h''(1) (curvature of the hyperelastic stress, eq. 10) is not identified by these "
-                            f"data (95 % interval +-{100 * rel:.0f} % of the fitted value, limit "
-                            f"{100 * CURVATURE_REL_CI_LIMIT:.0f} %): params.yaml carries the base value "
-                            f"{EXTENDED_COMBINATION_MATRIX[2] @ fallback / 1e3:.6g} kPa (derivative in s = lambda^2) "
-                            "and says 'not identified'; the "
-                            "other parameters and their intervals allow for its uncertainty." + hint)
+                            f"data (95 % interval +-{100 * rel:.0f} % of the fitted value: sign unknown): params.yaml "
+                            f"carries the base value {EXTENDED_COMBINATION_MATRIX[2] @ fallback / 1e3:.6g} kPa "
+                            "(derivative in s = lambda^2) and says 'not identified'; the other parameters' intervals "
+                            "allow for its uncertainty." + refit_note + hint)
                 else:
                     curvature_identified = None
         elif experiments.sines:
@@ -670,7 +766,7 @@ def identify(
                 warnings.append("joint refinement skipped: it needs the least-squares static fit with sigma_h(1) and "
                                 "sigma_h'(1) (static_method='lsq', stress_terms=2); the two-stage result is reported")
             if not dynamic.curvature_fitted:
-                curvature_identified = False
+                curvature_identified, curvature_status = False, "not identified"
                 warnings.append(
                     "sigma_h''(1) (curvature of the hyperelastic stress, eq. 10) is not identified: the static "
                     "deflections cannot see it and this fit did not use it; params.yaml says 'not identified'")
@@ -713,5 +809,6 @@ def identify(
     unique = [w for w in warnings if not (w in seen or seen.add(w))]
     return IdentificationResult(experiments, params, static, dynamic, metrics, curves, timings, unique, options,
                                 joint=joint, classification=classification,
-                                curvature_identified=curvature_identified, curvature_written_Pa=curvature_written)
+                                curvature_identified=curvature_identified, curvature_written_Pa=curvature_written,
+                                curvature_status=curvature_status)
 

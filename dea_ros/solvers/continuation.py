@@ -59,10 +59,11 @@ from .harmonic_balance import (
 )
 from .inputs import PeriodicInput
 from .realised import SETTLE_PERIODS, WINDOW_PERIODS, realised_response
+from .steady_state import SteadyStateError, solve_periodic
 
 __all__ = [
     "SweepPoint", "Fold", "Bifurcation", "Response", "Band", "Branch", "SweepResult", "frequency_sweep",
-    "ContinuationError", "sweep_independent", "KINDS", "period_doubled_solution",
+    "ContinuationError", "sweep_independent", "KINDS", "period_doubled_solution", "PRIMARY", "END_TOL",
 ]
 
 #: Kinds of realised response, in the order of the band summary.
@@ -1017,8 +1018,6 @@ def sweep_independent(
     rather than aborting the sweep. With ``integration``, a frequency without a periodic
     steady state (quasi-periodic response) is reported by :func:`realised_response` instead.
     """
-    from .steady_state import SteadyStateError, solve_periodic
-
     t_start = time.perf_counter()
     freqs = np.unique(np.asarray(frequencies_Hz, dtype=float))
     d0_static = float(static_equilibrium(params, 0.0).displacement_m)
