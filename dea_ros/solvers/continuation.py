@@ -73,6 +73,10 @@ PRIMARY = "T/2"
 #: Folds and stability changes of a period-doubled branch closer than this (in ln f) to its ends
 #: are the pitchforks it leaves and rejoins the T/2 branch at, not features of the branch.
 END_TOL = 1e-4
+#: Largest arclength step (ln omega and scaled collocation values): steps also halve when the
+#: tangent turns by more than 10 degrees, and every requested frequency is a station of the
+#: stability analysis, so bands are not stepped over.
+H_MAX = 0.05
 
 
 class ContinuationError(RuntimeError):
@@ -400,8 +404,18 @@ class _Tracer:
             if not np.isfinite(snorm) or snorm > 10.0:
                 return None
             if snorm < max(self.tol, 1e-9):
+                self.last_bordered = big   # at the last iterate (within tol): the next tangent's matrix
                 return zc, pc, it
         return None
+
+    def tangent_from_last(self):
+        """Unit tangent from the bordered matrix of the last converged corrector (no new Jacobian)."""
+        rhs = np.zeros(self.n + 1)
+        rhs[-1] = 1.0
+        t = np.linalg.solve(self.last_bordered, rhs)
+        tz, tp = t[:self.n], t[self.n]
+        norm = math.sqrt(self.inner(tz, tp, tz, tp))
+        return tz / norm, tp / norm
 
     def solve_at(self, p_target, z_seed):
         return self.system.newton(z_seed, math.exp(p_target), self.u2, tol=self.tol, max_iter=30)
@@ -444,7 +458,7 @@ class _Tracer:
                         f"continuation step underflow near f = {self.excitation_Hz(p):.6g} Hz")
                 continue
             z_new, p_new, iters = corrected
-            tz_new, tp_new = self.tangent(z_new, p_new, tz, tp)
+            tz_new, tp_new = self.tangent_from_last()
             # Reject steps that turn the tangent by more than ~10 degrees: a large step could
             # otherwise jump across a narrow S-shaped hysteresis loop.
             if self.inner(tz, tp, tz_new, tp_new) < max_turn_cos and h > 1e-6:
@@ -550,14 +564,13 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         model = setup.model
         states = np.stack([tracer.system.unscale(s[2]) for s in stations])
         periods = np.array([2.0 * np.pi / math.exp(s[3]) for s in stations])
-        mus = floquet_multipliers_batch(model, states, periods, inp, tracer.divisor, scale=setup.scale)
-        gidx = [i for i, s in enumerate(stations) if s[4] is not None]
-        if gidx:  # the reported points: as accurate as floquet_multipliers
-            acc = floquet_multipliers_batch(model, states[gidx], periods[gidx], inp, tracer.divisor,
-                                            scale=setup.scale, h_rho=0.5, min_steps=64)
-            for i, a in zip(gidx, acc):
-                mus[i] = a
-                mu_grid[stations[i][4]] = a
+        # multipliers to ~1e-7 (h rho <= 0.5, >= 32 Magnus steps): the reported points and the
+        # detection of stability changes alike
+        mus = floquet_multipliers_batch(model, states, periods, inp, tracer.divisor, scale=setup.scale,
+                                        h_rho=0.5, min_steps=32)
+        for i, st in enumerate(stations):
+            if st[4] is not None:
+                mu_grid[st[4]] = mus[i]
     else:
         mus = np.zeros((len(stations), 3))
     counts = [_n_outside(mu) for mu in mus]
@@ -567,7 +580,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         lo, hi = 0.0, 1.0
         s_lo = np.sign(tr["tp"][k])
         try:
-            for _ in range(14):
+            for _ in range(11):
                 mid = 0.5 * (lo + hi)
                 zm, pm = tracer.at(tr, k, mid)
                 _tz, tpm = tracer.tangent(zm, pm, tr["tz"][k], tr["tp"][k])
@@ -595,7 +608,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
             lo, hi = ta, (tb if kb == ka else 1.0)
             c_lo = counts[i]
             try:
-                for _ in range(14):
+                for _ in range(11):
                     mid = 0.5 * (lo + hi)
                     zm, pm = tracer.at(tr, k, mid)
                     if _n_outside(tracer.multipliers(zm, pm)) == c_lo:
@@ -800,7 +813,7 @@ def frequency_sweep(
     p_grid = np.log(2.0 * np.pi * freqs * divisor)
     dp_grid = float(np.min(np.diff(p_grid))) if freqs.size > 1 else 0.1
     h_max = max(min(0.5 * (p_grid[-1] - p0) / 4.0 + 1e-3, 0.25), 1e-3)
-    h_max = min(h_max, max(dp_grid, 0.02))
+    h_max = min(h_max, max(dp_grid, H_MAX))
     prim = _Tracer(setup, periodic_input, divisor, m, tol, h_max, p_grid)
     z0 = prim.system.to_z(start.state)
     tz0, tp0 = prim.tangent(z0, p0, np.zeros(prim.n), 1.0)
