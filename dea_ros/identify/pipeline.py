@@ -674,6 +674,22 @@ def identify(
         t0 = time.perf_counter()
         if experiments.sines:
             classification = classify_records(params, experiments, n_harmonics, noise)
+            # a record of stage 1 that the model (or the data) says is not periodic at T/2 was fitted with
+            # the wrong orbit: stage 1 again without it, then classify with that model
+            wrong = {(c["source"], round(c["frequency_Hz"], 9)) for c in classification if c["used"] != "periodic"}
+            kept = [f for f in stage1_freqs if not any((s.source, round(f, 9)) in wrong for s in experiments.sines)]
+            if len(kept) < len(stage1_freqs) and direction is None and (kept or experiments.steps):
+                for f in sorted(set(stage1_freqs) - set(kept)):
+                    warnings.append(f"{f:g} Hz: not periodic at T/2 for the model after stage 1 (a period-doubled or "
+                                    "quasi-periodic response): stage 1 repeated without it (eq. 24 assumes the T/2 orbit)")
+                redo = fit_dynamic(params if static is None else static.parameters, experiments.steps,
+                                   experiments.sines if kept else [], fit_frequencies_Hz=kept if kept else None,
+                                   start=experiments.base_parameters, **dyn_kw)
+                redo.n_evaluations += dynamic.n_evaluations
+                dynamic = redo
+                params = dynamic.parameters
+                warnings += [w for w in dynamic.warnings if w not in warnings]
+                classification = classify_records(params, experiments, n_harmonics, noise)
         timings["classification"] = time.perf_counter() - t0
         if refine == "joint" and static is not None and static.method == "lsq" and stress_terms == 2:
             t0 = time.perf_counter()

@@ -123,3 +123,22 @@ def test_series_classification_from_the_data(unlike):
     _folder, exp, _res = unlike("wide", 11)
     kinds = {round(s.frequency_Hz, 3): s.classify(1e-6)["kind"] for s in exp.sines[0].series}
     assert kinds == {2.0: "periodic", 10.0: "periodic", 10.19: "quasi-periodic", 19.5: "period-doubled"}
+
+
+def test_noise_weights_and_all_frequencies_without_records_are_not_fooled(unlike):
+    """Without sampled records only the model can tell the period-doubled and quasi-periodic records:
+    stage 1 with every frequency (the options an old warning recommended) must not fit them with the
+    T/2 orbit, nor let them bias the result."""
+    import dataclasses
+
+    from dea_ros.identify.pipeline import identify
+
+    _folder, exp, _res = unlike("wide", 11)
+    bare = dataclasses.replace(exp, sines=[dataclasses.replace(exp.sines[0], series=())])
+    res = identify(bare, weights="noise", fit_frequencies_Hz="all")
+    used = {round(c["frequency_Hz"], 3): c["used"] for c in res.classification}
+    assert used[10.19] == "left out" and used[19.5] == used[20.2] == "period-doubled"
+    assert not any(c["data_kind"] for c in res.classification)   # the model alone classified them
+    for n in ("relative_permittivity", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s"):
+        assert getattr(res.parameters, n) == pytest.approx(getattr(UNLIKE, n), rel=0.01)
+    assert 19.5 not in res.dynamic.fit_frequencies_Hz and 10.19 not in res.dynamic.fit_frequencies_Hz
