@@ -279,24 +279,49 @@ def cmd_sweep(args) -> int:
     if args.json:
         print_json(out)
         return 0
-    peak, tip = out["resonance_peak"], out["resonance_peak_branch"]
-    print(f"Frequency sweep of membrane {params.name}: {args.amplitude:g} V sine"
+    print_sweep_text(result, params.name, args, fmin, fmax)
+    return 0
+
+
+def print_sweep_text(result, name: str, args, fmin: float, fmax: float) -> None:
+    """The sweep as text: band summary, then the realised response per frequency."""
+    print(f"Frequency sweep of membrane {name}: {args.amplitude:g} V sine"
           f"{'' if not args.offset else f' + {args.offset:g} V offset'}, {fmin:g}-{fmax:g} Hz, "
           f"{args.points} frequencies, N = {args.harmonics} harmonics, method {args.method}")
     print(f"d_rms per eq. 21 with d0 = {args.d0}"
           f"{f' ({result.d0_m * 1e6:.3f} um)' if args.d0 == 'static' else ''}")
-    print(f"{'f [Hz]':>9} {'d_rms [um]':>11} {'mean d [um]':>12} {'stability':>28} {'iter':>5} {'ms':>7}")
-    for p in result.points:
-        print(f"{p.frequency_Hz:9.3f} {p.d_rms_m * 1e6:11.3f} {p.mean_displacement_m * 1e6:12.3f} "
-              f"{p.stability:>28} {p.iterations:5d} {p.wall_time_s * 1e3:7.2f}")
-    for f in result.folds:
-        print(f"fold (turning point) at {f.frequency_Hz:.4f} Hz, d_rms {f.d_rms_m * 1e6:.2f} um")
-    print(f"resonance peak (stable branch): {peak['frequency_Hz']:.3f} Hz, d_rms {peak['d_rms_m'] * 1e6:.2f} um")
-    print(f"branch maximum: {tip['frequency_Hz']:.3f} Hz, d_rms {tip['d_rms_m'] * 1e6:.2f} um")
-    unstable = [p for p in result.points if not p.stable]
-    if unstable:
-        print(f"{len(unstable)} unstable periodic solutions (no stable response of this kind there: "
-              "expect jumps, modulation or period doubling in an experiment)")
+    if result.bands:
+        print("Bands (what a measurement sees; edges at the located bifurcations):")
+        for b in result.bands:
+            print(f"  {b.describe()}  [{b.start_edge} .. {b.end_edge}]")
+    print("Realised response per frequency (kind; a slow upward sweep; T/2 = the orbit with the period of u^2):")
+    t2 = {round(p.frequency_Hz, 9): p for p in result.points}
+    print(f"{'f [Hz]':>9} {'d_rms [um]':>11} {'kind':>15} {'branch':>11} {'min..max [um]':>19} "
+          f"{'T/2 orbit [um]':>15} {'T/2 stability':>28}")
+    for r in result.responses:
+        p = t2.get(round(r.frequency_Hz, 9))
+        env = (f"{r.d_rms_min_m * 1e6:8.2f}..{r.d_rms_max_m * 1e6:<8.2f}"
+               if r.d_rms_max_m - r.d_rms_min_m > 1e-3 * max(abs(r.d_rms_m), 1e-12) else "")
+        t2_val = f"{p.d_rms_m * 1e6:15.3f}" if p is not None else f"{'-':>15}"
+        t2_stab = p.stability if p is not None else "-"
+        print(f"{r.frequency_Hz:9.3f} {r.d_rms_m * 1e6:11.3f} {r.kind:>15} {r.branch:>11} {env:>19} "
+              f"{t2_val} {t2_stab:>28}")
+    for b in result.bifurcations:
+        print(f"{b.kind} of the {b.branch} branch at {b.frequency_Hz:.4f} Hz, d_rms {b.d_rms_m * 1e6:.2f} um")
+    qp = [r for r in result.responses if r.branch == "integration"]
+    if qp:
+        w = qp[0].integration or {}
+        print(f"quasi-periodic responses: forward integration, mean RMS (eq. 21) over {w.get('window_periods')} "
+              f"periods after {w.get('settle_periods')}, min..max = RMS of single periods")
+    peak, tip = result.resonance_peak(True), result.resonance_peak(False)
+    big = result.largest_response()
+    print(f"resonance peak (stable T/2 branch, located on the branch): {peak['frequency_Hz']:.4f} Hz, "
+          f"d_rms {peak['d_rms_m'] * 1e6:.2f} um")
+    if tip["d_rms_m"] > peak["d_rms_m"]:
+        print(f"branch maximum (unstable): {tip['frequency_Hz']:.4f} Hz, d_rms {tip['d_rms_m'] * 1e6:.2f} um")
+    if result.responses:
+        print(f"largest realised response: {big['frequency_Hz']:.3f} Hz, d_rms {big['d_rms_m'] * 1e6:.2f} um "
+              f"({big['kind']}, {big['branch']})")
     ratio = result.max_truncation_ratio
     if ratio > 1e-2:
         print(f"WARNING: the highest harmonic reaches {ratio:.2g} of the dominant one: N = {args.harmonics} "
@@ -304,22 +329,39 @@ def cmd_sweep(args) -> int:
     print(f"total wall time {result.wall_time_s:.3f} s")
     if args.plot:
         print(f"plot: {args.plot}")
-    return 0
+
+
+BAND_COLOURS = {"period-doubled": "tab:orange", "quasi-periodic": "tab:red", "coexisting": "tab:purple"}
 
 
 def plot_sweep(result, name: str, args) -> None:
+    """Realised response (markers), branches (lines: solid stable, dotted unstable), shaded bands."""
     plt = matplotlib_pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    f = result.frequencies_Hz
-    d = result.d_rms_m * 1e6
-    seg = np.array([p.segment for p in result.points])
-    stable = result.stable
-    for s in np.unique(seg):
-        k = seg == s
-        ax.plot(f[k], d[k], "-", color="0.75", lw=1, zorder=1)
-    ax.plot(f[stable], d[stable], ".", color="tab:blue", label="stable", zorder=2)
-    if (~stable).any():
-        ax.plot(f[~stable], d[~stable], "x", color="tab:red", label="unstable", zorder=3)
+    fig, ax = plt.subplots(figsize=(8, 5))
+    for b in result.bands:
+        if b.kind in BAND_COLOURS:
+            ax.axvspan(b.f_start_Hz, b.f_end_Hz, color=BAND_COLOURS[b.kind], alpha=0.12, lw=0)
+            ax.plot([], [], "s", color=BAND_COLOURS[b.kind], alpha=0.3, label=f"band: {b.kind}")
+    styles = {"T/2": "tab:blue", "T": "tab:orange"}
+    for br in result.branches:
+        col = styles.get(br.name, "tab:green")
+        f, d, st = br.curve_frequency_Hz, br.curve_d_rms_m * 1e6, br.curve_stable
+        ax.plot(f, np.where(st, d, np.nan), "-", color=col, lw=1.2,
+                label=f"{br.name} branch ({br.kind}), stable")
+        ax.plot(f, np.where(~st, d, np.nan), ":", color=col, lw=1.0, label=f"{br.name} branch, unstable")
+    if not result.branches:  # independent sweeps: the solved points only
+        f = result.frequencies_Hz
+        ax.plot(f, result.d_rms_m * 1e6, ".-", color="tab:blue", label="periodic solution")
+    if result.responses:
+        rf = result.response_frequencies_Hz
+        rd = result.realised_d_rms_m * 1e6
+        ax.plot(rf, rd, ".", color="k", ms=3, label="realised response")
+        qp = [r for r in result.responses if r.branch == "integration"]
+        if qp:
+            ax.errorbar([r.frequency_Hz for r in qp], [r.d_rms_m * 1e6 for r in qp],
+                        yerr=[[(r.d_rms_m - r.d_rms_min_m) * 1e6 for r in qp],
+                              [(r.d_rms_max_m - r.d_rms_m) * 1e6 for r in qp]],
+                        fmt="o", color="tab:red", ms=4, capsize=3, label="quasi-periodic (mean, min/max)")
     for fold in result.folds:
         ax.plot(fold.frequency_Hz, fold.d_rms_m * 1e6, "o", mfc="none", color="k")
     if result.folds:
@@ -327,7 +369,7 @@ def plot_sweep(result, name: str, args) -> None:
     ax.set_xlabel("excitation frequency [Hz]")
     ax.set_ylabel("d_rms (eq. 21) [um]")
     ax.set_title(f"Membrane {name}: {args.amplitude:g} V sine, N = {args.harmonics} ({args.method})")
-    ax.legend()
+    ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(args.plot, dpi=120)

@@ -224,7 +224,8 @@ def cmd_identify(args) -> int:
 def _identify_options(args, fit_freqs) -> dict:
     return dict(static_method=args.static_method, frequency_method=args.frequency_method,
                 dynamic_method=args.dynamic_method, fit_frequencies_Hz=fit_freqs, n_harmonics=args.harmonics,
-                weights=args.weights, fit_curvature={"auto": "auto", "yes": True, "no": False}[args.fit_curvature])
+                weights=args.weights, fit_curvature={"auto": "auto", "yes": True, "no": False}[args.fit_curvature],
+                refine=getattr(args, "refine", "joint"))
 
 
 def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | None:
@@ -323,10 +324,14 @@ def register(subparsers) -> dict:
     ident.add_argument("--fit-frequencies", default=None,
                        help="comma-separated Hz, or 'all' (default: the paper's 0.2, 8.3, 11.2, 40 Hz in the data)")
     ident.add_argument("--weights", choices=("paper", "noise"), default="paper",
-                       help="paper: eq. 22 with w_step = 6.6e6, w_hbm = 0.1e6 (default); noise: 1/sigma^2 "
-                            "(laser noise, d_rms_std_m column), also identifies sigma_h''(1)")
+                       help="weights of the paper's dynamic fit (stage 1): paper: eq. 22 with w_step = 6.6e6, "
+                            "w_hbm = 0.1e6 (default); noise: 1/sigma^2 (laser noise, d_rms_std_m column)")
     ident.add_argument("--fit-curvature", choices=("auto", "yes", "no"), default="auto",
-                       help="identify sigma_h''(1) in the dynamic fit (auto: with --weights noise)")
+                       help="identify sigma_h''(1): auto (default) in the joint refinement when there are sine "
+                            "records, written only when the data determine it; yes: also in stage 1; no: never")
+    ident.add_argument("--refine", choices=("joint", "none"), default="joint",
+                       help="joint (default): refine all identifiable parameters together with statistical weights "
+                            "on every classified sine record (honest 95 %% intervals); none: the paper's two stages")
     ident.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     ident.add_argument("--voltage-topic", default="/dea/voltage",
                        help="bags: applied-voltage topic (BatteryState or Float64; default /dea/voltage)")

@@ -33,10 +33,14 @@ One folder per data set::
         voltage_hold: zoh        # optional: zoh (DAQ output, default) or linear
         mass_kg: 0.003           # optional: overrides the top-level mass for this experiment
       - kind: sine               # columns frequency_Hz, amplitude_V, d_rms_m[, d0_m, d_rms_std_m]
-        file: sine_rms.csv       #   d_rms by eq. 21 around the rest position d0; d_rms_std_m its
-                                 #   standard uncertainty (needed for weights="noise")
-        series:                  # optional sampled records: time_s, voltage_V, displacement_m
-          - {frequency_Hz: 2.0, file: sine_2Hz.csv}
+        file: sine_rms.csv       #   d_rms by eq. 21 around the rest position d0 over whole periods
+                                 #   (laser noise removed, see rms_statistics); d_rms_std_m its
+                                 #   standard uncertainty (statistical weights of the joint fit)
+        waveform: sine           # the applied voltage: sine, u = U sin(2 pi f t) (the paper), or
+                                 #   abs_sine, u = |U sin(2 pi f t)| (a unipolar amplifier, the rig);
+                                 #   U = amplitude_V. Both give the same u^2, all the model sees (eq. 6)
+        series:                  # optional sampled records: time_s, voltage_V (the applied u(t)),
+          - {frequency_Hz: 2.0, file: sine_2Hz.csv}     # displacement_m, from phase 0 of the sine
 
 CSV files: comma separated, ``#`` starts a comment line, the first other line
 is the header. Every column name ends with its unit (``_s``, ``_V``, ``_m``,
@@ -64,6 +68,7 @@ from ..model.parameters import PRESET_NAMES, MembraneParameters, ParameterError,
 __all__ = [
     "FORMAT",
     "KINDS",
+    "WAVEFORMS",
     "GEOMETRY_FIELDS",
     "ExperimentError",
     "StaticData",
@@ -79,6 +84,8 @@ __all__ = [
 
 FORMAT = "dea_ros.experiments/1"
 KINDS = ("static", "step", "sine")
+#: Waveforms of the sine experiments: U sin(2 pi f t) or |U sin(2 pi f t)| (same u^2).
+WAVEFORMS = ("sine", "abs_sine")
 GEOMETRY_FIELDS = ("prestretch", "thickness_m", "plate_radius_m", "electrode_width_m")
 _SI_UNITS = {"time": "s", "voltage": "V", "displacement": "m", "mass": "kg", "frequency": "Hz"}
 
@@ -424,18 +431,81 @@ class SineSeries:
         object.__setattr__(self, "frequency_Hz", f)
 
     def whole_periods(self) -> np.ndarray:
-        """Boolean mask of the samples within the largest whole number of periods."""
-        t = self.time_s - self.time_s[0]
-        dt = float(np.median(np.diff(self.time_s)))
-        n_periods = math.floor((t[-1] + dt) * self.frequency_Hz + 1e-9)
-        if n_periods < 1:
-            raise ExperimentError(f"{self.source}: shorter than one period at {self.frequency_Hz:g} Hz")
-        return t < n_periods / self.frequency_Hz - 1e-12
+        """Boolean mask of the samples within the whole periods used by :meth:`period_weights`."""
+        w, _n, _wrap = period_weights(self.time_s, self.frequency_Hz, self.source)
+        return w > 0
 
-    def displacement_rms(self, d0_m: float) -> float:
-        """RMS of d - d0 over whole periods (eq. 21)."""
-        d = self.displacement_m[self.whole_periods()]
-        return float(np.sqrt(np.mean((d - d0_m) ** 2)))
+    def period_weights(self):
+        """(weights, number of periods, wrapped) of :func:`period_weights` for this record."""
+        return period_weights(self.time_s, self.frequency_Hz, self.source)
+
+    def displacement_rms(self, d0_m: float, noise_m: float | None = None, d0_std_m: float = 0.0) -> float:
+        """RMS of d - d0 over whole periods (eq. 21), with interpolated period boundaries.
+
+        The mean square is the integral over n whole periods of the linear interpolant of
+        (d - d0)^2 (weights of :func:`period_weights`), so a period that is not a whole number
+        of samples adds no bias. With ``noise_m`` (laser noise sigma) the noise contribution
+        sigma^2 + d0_std^2 is removed from the mean square: unbiased.
+        """
+        return rms_statistics(self, d0_m, noise_m, d0_std_m)[0]
+
+    def displacement_rms_std(self, d0_m: float, noise_m: float, d0_std_m: float = 0.0) -> float:
+        """Standard uncertainty of :meth:`displacement_rms` for white laser noise ``noise_m`` and an
+        uncertainty ``d0_std_m`` of the rest position (linearised)."""
+        return rms_statistics(self, d0_m, noise_m, d0_std_m)[1]
+
+    def noise_m(self) -> float | None:
+        """Laser noise sigma estimated from the record's third differences (see :func:`estimate_noise_m`)."""
+        return _third_difference_noise(self.displacement_m)
+
+    def classify(self, noise_m: float | None = None) -> dict:
+        """What the record shows, from the data alone: ``periodic`` (period T/2 of u^2),
+        ``period-doubled`` (period T: odd harmonics of f) or ``quasi-periodic`` (no period).
+
+        Least-squares Fourier series over the whole periods with harmonics of 2f (period T/2)
+        and of f (period T), up to 0.45 of the sampling rate; their residual RMS is compared
+        with the laser noise (``noise_m``, else estimated from the record). Period T when the
+        odd harmonics are significant (more than 5 sigma of chi-square and an RMS above 3x the
+        noise) and the full-period fit leaves no more than 2x the noise; quasi-periodic when
+        that fit leaves more; period T/2 otherwise.
+        """
+        w, n_periods, _wrap = self.period_weights()
+        keep = w > 0
+        t = self.time_s[keep] - self.time_s[0]
+        d = self.displacement_m[keep]
+        sigma = noise_m if noise_m is not None else self.noise_m()
+        sigma = max(float(sigma or 0.0), 1e-12 * max(float(np.ptp(d)), 1e-9))
+        fs = 1.0 / float(np.median(np.diff(self.time_s)))
+        top = max(2, min(60, int(0.45 * fs / self.frequency_Hz)))
+        theta = 2.0 * np.pi * self.frequency_Hz * t
+
+        def fit(harmonics):
+            cols = [np.ones_like(theta)]
+            for k in harmonics:
+                cols += [np.cos(k * theta), np.sin(k * theta)]
+            a = np.column_stack(cols)
+            coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+            res = d - a @ coef
+            return float(res @ res), a.shape[1]
+
+        rss_half, p_half = fit(range(2, top + 1, 2))
+        rss_full, p_full = fit(range(1, top + 1))
+        n = d.size
+        r_half = math.sqrt(rss_half / max(n - p_half, 1))
+        r_full = math.sqrt(rss_full / max(n - p_full, 1))
+        extra = p_full - p_half
+        chi2_gain = (rss_half - rss_full) / sigma**2
+        odd_rms = math.sqrt(max(rss_half - rss_full, 0.0) / n)
+        if r_full > 2.0 * sigma:
+            kind = "quasi-periodic"
+        elif chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra) and odd_rms > 3.0 * sigma:
+            # odd harmonics well above the noise (aliased even harmonics near the Nyquist
+            # frequency stay at the noise level)
+            kind = "period-doubled"
+        else:
+            kind = "periodic"
+        return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "odd_rms_m": odd_rms,
+                "noise_m": sigma, "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
@@ -468,6 +538,83 @@ class SineSeries:
         return SampledPeriodic(u, self.frequency_Hz)
 
 
+def _interpolant_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Weights w with sum(w f) = integral over [a, b] of the linear interpolant of (t, f)."""
+    w = np.zeros(t.size)
+    left, right = t[:-1], t[1:]
+    c = np.clip(a, left, right)
+    e = np.clip(b, left, right)
+    h = right - left
+    use = e > c
+    w[:-1] += np.where(use, ((right - c) ** 2 - (right - e) ** 2) / (2.0 * h), 0.0)
+    w[1:] += np.where(use, ((e - left) ** 2 - (c - left) ** 2) / (2.0 * h), 0.0)
+    return w
+
+
+def period_weights(time_s, frequency_Hz: float, source: str = "sine record", max_gap_samples: float = 3.0):
+    """Weights (s) of the samples for the integral over the largest whole number n of periods
+    T = 1/f from the first sample: (weights, n, wrapped).
+
+    The window [t0, t0 + n T] is integrated on the linear interpolant of the samples; its end
+    falls between two samples in general (interpolated boundary). When the record stops short of
+    t0 + n T by at most ``max_gap_samples`` sample intervals (a record of floor(n T f_s) samples,
+    or one sample fewer), the periodic steady state supplies the missing end: the integral over
+    [t_last, t0 + n T] equals the one over [t_last - T, t0 + (n-1) T], inside the record, so a
+    record one sample short does not lose a whole period (``wrapped``). The trapezoidal end
+    corrections of the pieces cancel by periodicity: the mean square of a periodic record is
+    accurate to ~1e-6 whatever the number of samples per period.
+    Raises :class:`ExperimentError` for a record shorter than one period.
+    """
+    t = np.asarray(time_s, float) - float(time_s[0])
+    dt = float(np.median(np.diff(t)))
+    period = 1.0 / float(frequency_Hz)
+    n = int(math.floor((t[-1] + max_gap_samples * dt * (1.0 + 1e-9)) / period + 1e-12))
+    if n < 1:
+        raise ExperimentError(f"{source}: shorter than one period at {frequency_Hz:g} Hz")
+    end = n * period
+    if end <= t[-1]:
+        return _interpolant_weights(t, 0.0, end), n, False
+    w = _interpolant_weights(t, 0.0, t[-1])
+    if t[-1] - period >= 0.0:
+        w += _interpolant_weights(t, t[-1] - period, end - period)
+    else:  # a single period: close it with the periodic trapezoid d(t0 + T) = d(t0)
+        gap = end - t[-1]
+        w[-1] += 0.5 * gap
+        w[0] += 0.5 * gap
+    return w, n, True
+
+
+def rms_statistics(series: "SineSeries", d0_m: float, noise_m: float | None = None,
+                   d0_std_m: float = 0.0) -> tuple:
+    """(d_rms, its standard uncertainty or None) of a sampled record over whole periods (eq. 21).
+
+    See :meth:`SineSeries.displacement_rms`. Uncertainty (``noise_m`` given): white noise on
+    every sample and the uncertainty of d0, propagated linearly through the weighted mean square.
+    """
+    w, _n, _wrap = period_weights(series.time_s, series.frequency_Hz, series.source)
+    total = float(np.sum(w))
+    dev = series.displacement_m - float(d0_m)
+    ms = float(w @ (dev * dev)) / total
+    if noise_m is not None:
+        ms -= float(noise_m) ** 2 + float(d0_std_m) ** 2
+    rms = math.sqrt(max(ms, 0.0))
+    if noise_m is None or rms <= 0:
+        return rms, None
+    grad = w * dev / (total * rms)
+    mean_dev = float(w @ dev) / total
+    var = float(noise_m) ** 2 * float(grad @ grad) + (mean_dev / rms) ** 2 * float(d0_std_m) ** 2
+    return rms, math.sqrt(var)
+
+
+def _third_difference_noise(d, min_samples: int = 20) -> float | None:
+    d = np.asarray(d, float)
+    if d.size < min_samples:
+        return None
+    d3 = np.diff(d, 3)
+    mad = float(np.median(np.abs(d3 - np.median(d3))))
+    return 1.4826 * mad / math.sqrt(20.0)
+
+
 @dataclass(frozen=True)
 class SineData:
     """Frequency response (eq. 21): RMS displacement around the rest position d0 per frequency."""
@@ -483,6 +630,8 @@ class SineData:
     #: and the evaluation then use the applied waveform instead of the nominal sine
     inputs: tuple = ()
     d_rms_std_m: np.ndarray | None = None
+    #: the applied voltage: "sine" (U sin wt) or "abs_sine" (|U sin wt|); see WAVEFORMS
+    waveform: str = "sine"
 
     def __post_init__(self):
         src = self.source
@@ -529,6 +678,9 @@ class SineData:
         object.__setattr__(self, "inputs", tuple(self.inputs))
         if self.inputs and len(self.inputs) != n:
             raise ExperimentError(f"{src}: {len(self.inputs)} inputs for {n} frequencies")
+        if self.waveform not in WAVEFORMS:
+            raise ExperimentError(f"{src}: waveform must be one of {WAVEFORMS} (U sin wt or |U sin wt|), "
+                                  f"got {self.waveform!r}")
 
     @property
     def n_frequencies(self) -> int:
@@ -737,9 +889,14 @@ def load_experiment_set(folder: str | Path) -> ExperimentSet:
                     _check_time(scols["time_s"], "time_s", str(spath), scols["_lines"])
                     series.append(SineSeries(float(item["frequency_Hz"]), scols["time_s"], scols["voltage_V"],
                                              scols["displacement_m"], source=str(spath)))
+                waveform = entry.get("waveform", "sine")
+                if waveform not in WAVEFORMS:
+                    raise _manifest_error(manifest, f"{where}.waveform: {waveform!r} is not one of {WAVEFORMS} "
+                                                    "(sine: U sin(2 pi f t); abs_sine: |U sin(2 pi f t)|)")
                 sines.append(SineData(cols["frequency_Hz"], cols["amplitude_V"], cols["d_rms_m"],
                                       mass_kg=exp_mass, d0_m=cols.get("d0_m"), series=tuple(series),
-                                      source=str(path), d_rms_std_m=cols.get("d_rms_std_m")))
+                                      source=str(path), d_rms_std_m=cols.get("d_rms_std_m"),
+                                      waveform=waveform))
         except ParameterError as exc:  # pragma: no cover - defensive
             raise ExperimentError(f"{path}: {exc}") from None
     return ExperimentSet(
@@ -797,9 +954,11 @@ def write_experiment_set(experiments: ExperimentSet, folder: str | Path) -> Path
         if s.d_rms_std_m is not None:
             cols["d_rms_std_m"] = s.d_rms_std_m
         write_csv_columns(folder / name, cols,
-                          comment="frequency response: RMS of d - d0 over whole periods (eq. 21); "
-                                  "d_rms_std_m: its standard uncertainty (optional)")
-        entry: dict[str, Any] = {"kind": "sine", "file": name}
+                          comment="frequency response: RMS of d - d0 over whole periods (eq. 21, interpolated "
+                                  "period boundaries, laser noise removed); d_rms_std_m: its standard uncertainty "
+                                  f"(optional); excitation u = {'|U sin(2 pi f t)|' if s.waveform == 'abs_sine' else 'U sin(2 pi f t)'}"
+                                  ", U = amplitude_V")
+        entry: dict[str, Any] = {"kind": "sine", "file": name, "waveform": s.waveform}
         if s.mass_kg != experiments.mass_kg:
             entry["mass_kg"] = s.mass_kg
         series = []
@@ -834,12 +993,7 @@ def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
     insensitive to the response itself. A robust spread (1.4826 x median absolute deviation)
     ignores the few samples around the voltage step. None for fewer than ``min_samples`` samples.
     """
-    d = step.displacement_m
-    if d.size < min_samples:
-        return None
-    d3 = np.diff(d, 3)
-    mad = float(np.median(np.abs(d3 - np.median(d3))))
-    return 1.4826 * mad / math.sqrt(20.0)
+    return _third_difference_noise(step.displacement_m, min_samples)
 
 
 def rest_warning(step: StepData, noise_m: float | None) -> str | None:
@@ -928,4 +1082,5 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
     return out
 
 
-__all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings"]
+__all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings", "period_weights",
+            "rms_statistics"]

@@ -4,6 +4,8 @@
   integrated with the trapezoidal rule over the record; ITAE weights |e| by the time since the step.
 * :func:`resonance_peak_Hz` -- frequency of the RMS maximum of a frequency response, refined by a
   parabola through the largest sample and its neighbours (Table IV).
+* :func:`measured_resonance_peak` -- the resonance peak of measured data, only when the data bracket
+  it densely (neighbours within 1 % in frequency on both sides); otherwise "not measured".
 * :func:`static_errors_um` -- RMS and maximum static error in micrometres (Fig. 6, section IV-B).
 * :func:`parameter_statistics` -- standard errors, confidence intervals and the correlation matrix
   of fitted parameters from the residual Jacobian at the optimum, with the residual variance
@@ -18,13 +20,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+from scipy import stats as stats_module
 
 __all__ = [
     "ParameterStatistics",
     "parameter_statistics",
     "step_error_indices",
     "resonance_peak_Hz",
+    "measured_resonance_peak",
+    "PEAK_SPACING_LIMIT",
     "static_errors_um",
+    "linear_combination_ci",
     "RELATIVE_CI_LIMIT",
     "CORRELATION_LIMIT",
 ]
@@ -170,6 +176,29 @@ def parameter_statistics(
     )
 
 
+def linear_combination_ci(stats: ParameterStatistics, weights: dict):
+    """(value, CI low, CI high, relative half-width) of sum_i w_i p_i over fitted parameters
+    (``weights``: name -> w_i), from their linearised covariance, at the statistics' confidence.
+    None when a name is not among the fitted parameters (or a parameter was fitted in log)."""
+    if stats is None or any(n not in stats.names for n in weights):
+        return None
+    idx = [stats.names.index(n) for n in weights]
+    w = np.array(list(weights.values()), float)
+    se = np.asarray(stats.std_error, float)[idx]
+    if not np.all(np.isfinite(se)):
+        return (float(w @ np.asarray(stats.values, float)[idx]), -np.inf, np.inf, float("inf"))
+    cov = np.asarray(stats.correlation, float)[np.ix_(idx, idx)] * np.outer(se, se)
+    value = float(w @ np.asarray(stats.values, float)[idx])
+    t = float(stats_t(stats))
+    half = float(t * math.sqrt(max(float(w @ cov @ w), 0.0)))
+    return value, value - half, value + half, (half / abs(value) if value != 0 else float("inf"))
+
+
+def stats_t(stats: ParameterStatistics) -> float:
+    """The t quantile of the statistics' confidence level and degrees of freedom."""
+    return float(stats_module.t.ppf(0.5 + stats.confidence / 2.0, max(stats.dof, 1)))
+
+
 def _trapezoid(y, x) -> float:
     """Trapezoidal rule (np.trapezoid is numpy >= 2 only; np.trapz is gone from numpy 2.4)."""
     y = np.asarray(y, dtype=float)
@@ -220,6 +249,48 @@ def resonance_peak_Hz(frequency_Hz, d_rms_m) -> float:
         return float(f[k])
     vertex = -a[1] / (2 * a[0])
     return float(np.clip(vertex, x[0], x[2]))
+
+
+#: Largest relative frequency spacing of the neighbours of the largest measured RMS for a measured peak.
+PEAK_SPACING_LIMIT = 0.01
+
+
+def measured_resonance_peak(frequency_Hz, d_rms_m, usable=None, spacing_limit: float = PEAK_SPACING_LIMIT) -> dict:
+    """The resonance peak of measured RMS values, only where the data bracket it densely.
+
+    ``usable`` (optional, per point): records the peak may be taken from (e.g. the periodic ones;
+    a period-doubled record is not the resonance). The largest usable value must have a usable
+    neighbour on each side within ``spacing_limit`` of its frequency, both lower; then the peak
+    is the vertex of the parabola through the three. Otherwise ``measured`` is False and ``note``
+    says why (e.g. the paper's four frequencies do not bracket the peak): no number is invented.
+    Returns {frequency_Hz, d_rms_m, measured, note}.
+    """
+    f = np.asarray(frequency_Hz, dtype=float)
+    r = np.asarray(d_rms_m, dtype=float)
+    ok = np.isfinite(r) if usable is None else (np.isfinite(r) & np.asarray(usable, dtype=bool))
+    nan = float("nan")
+    if np.count_nonzero(ok) < 3:
+        return {"frequency_Hz": nan, "d_rms_m": nan, "measured": False,
+                "note": "not measured: fewer than three usable frequencies"}
+    order = np.argsort(f[ok])
+    f, r = f[ok][order], r[ok][order]
+    k = int(np.argmax(r))
+    if k == 0 or k == f.size - 1:
+        return {"frequency_Hz": nan, "d_rms_m": nan, "measured": False,
+                "note": f"not measured: the largest RMS is at the edge of the data ({f[k]:g} Hz)"}
+    gap = max(f[k] - f[k - 1], f[k + 1] - f[k]) / f[k]
+    if gap > spacing_limit:
+        return {"frequency_Hz": nan, "d_rms_m": nan, "measured": False,
+                "note": (f"not measured: the largest RMS ({f[k]:g} Hz) has neighbours {100 * gap:.1f} % away "
+                         f"in frequency; bracketing the peak needs <= {100 * spacing_limit:g} %")}
+    x, y = f[k - 1:k + 2], r[k - 1:k + 2]
+    a = np.polyfit(x - f[k], y, 2)
+    if a[0] >= 0:
+        return {"frequency_Hz": float(f[k]), "d_rms_m": float(r[k]), "measured": True,
+                "note": "largest sample (no curvature)"}
+    shift = float(np.clip(-a[1] / (2 * a[0]), x[0] - f[k], x[2] - f[k]))
+    return {"frequency_Hz": float(f[k] + shift), "d_rms_m": float(np.polyval(a, shift)), "measured": True,
+            "note": f"parabola through {x[0]:g}, {x[1]:g}, {x[2]:g} Hz"}
 
 
 def static_errors_um(measured_m, predicted_m) -> dict:

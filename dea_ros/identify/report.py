@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .metrics import linear_combination_ci
 from .pipeline import IdentificationResult
 from .static_fit import stress_combinations
 
@@ -31,20 +32,45 @@ __all__ = ["write_report", "write_parameters", "plot_static", "plot_steps", "plo
 
 
 def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
-    """Fitted parameters as YAML with a header naming the data and the methods."""
+    """Fitted parameters as YAML: the MembraneParameters fields under ``membrane:`` (loadable by
+    :meth:`MembraneParameters.from_yaml` and every node and command), what was identified and how
+    under ``identification:`` (sigma_h''(1) "not identified" when the data do not determine it:
+    beta/gamma then carry the base value), and a header naming the data and the methods."""
+    import yaml
+
     path = Path(path)
     exp = result.experiments
     lines = [
+        "dea_ros membrane parameters, SI units (m, kg, Pa, Pa s, V/m); fields: see dea_ros.model.parameters,",
+        "paper eqs. 1-12, Tables I-II.",
         f"fitted by dea_ros.identify from {exp.folder if exp.folder else 'in-memory data'} ({exp.summary()})",
         f"static fit: {result.options.get('static_method')}, dynamic fit: {result.options.get('dynamic_method')} "
-        f"with frequency response by {result.options.get('frequency_method')}",
+        f"with frequency response by {result.options.get('frequency_method')}, refinement: "
+        f"{result.options.get('refine', 'none')}",
     ]
     if result.static is not None and result.static.method == "lsq":
-        c = result.static.combinations_Pa
-        lines.append(f"identified: sigma_h(1) = {c[0]:.6g} Pa, sigma_h'(1) = {c[1]:.6g} Pa, eps_r; beta/gamma are "
-                     f"one representative ({result.static.representation}), not individually identifiable")
-    result.parameters.to_yaml(path, header="\n".join(lines))
+        lines.append("identified: sigma_h(1), its slope and eps_r (and the curvature where the 'identification' "
+                     "section says so); beta/gamma are one representative, not individually identifiable")
+    if result.curvature_identified is False:
+        lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry the base value (see 'identification')")
+    text = "\n".join(f"# {line}" for line in lines) + "\n"
+    data = {"membrane": result.parameters.to_dict(), "identification": _plain(result.identification_metadata())}
+    text += yaml.safe_dump(data, sort_keys=False)
+    path.write_text(text)
     return path
+
+
+def _plain(obj):
+    """YAML-safe copy (floats, lists, strings)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return float(obj)
+    if isinstance(obj, (np.integer, int)) and not isinstance(obj, bool):
+        return int(obj)
+    return obj
 
 
 def _fig(width=7.0, height=4.5, nrows=1, ncols=1, **kw):
@@ -122,44 +148,65 @@ def plot_steps(result: IdentificationResult, path: str | Path) -> Path | None:
     return Path(path)
 
 
+KIND_MARKERS = {"periodic": ("o", "C0"), "period-doubled": ("s", "C1"), "left out": ("x", "C3")}
+
+
 def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | None:
-    """Fig. 8 (right): RMS displacement (eq. 21) vs frequency, data and model (unstable: dotted)."""
+    """Fig. 8 (right): RMS displacement (eq. 21) vs frequency: the model's realised response (what a
+    measurement sees: periodic, period-doubled, quasi-periodic by integration), its T/2 branch
+    (dotted where unstable), the data marked by what they were fitted with."""
     sines = result.curves.get("sines")
     if not sines:
         return None
-    fig, ax = _fig(8.0, 4.8)
-    fit_f = set()
-    if result.dynamic is not None:
-        fit_f = {round(float(f), 9) for f in result.dynamic.fit_frequencies_Hz}
+    fig, ax = _fig(8.5, 5.0)
     for k, item in enumerate(sines):
         sine = item["sine"]
-        for amp, f_dense, rms, stab in item["dense"]:
-            color = f"C{k}"
-            stable_curve = np.where(stab, rms, np.nan)
-            unstable_curve = np.where(~stab, rms, np.nan)
-            ax.plot(f_dense, stable_curve * 1e3, "-", color=color, label=f"model, {amp / 1e3:g} kV")
-            if np.any(np.isfinite(unstable_curve)):
-                ax.plot(f_dense, unstable_curve * 1e3, ":", color=color, label="model, unstable orbit")
-        ax.plot(sine.frequency_Hz, sine.d_rms_m * 1e3, "x", color="k", ms=7, label="data")
-        fitted = np.array([round(float(f), 9) in fit_f for f in sine.frequency_Hz])
-        if np.any(fitted):
-            ax.plot(sine.frequency_Hz[fitted], sine.d_rms_m[fitted] * 1e3, "o", mfc="none", color="C3", ms=11,
-                    label="used in the fit (eq. 24)")
+        for amp, sweep in item["dense"]:
+            for br in sweep.branches:
+                col = "C0" if br.kind == "periodic" else "C1"
+                d = br.curve_d_rms_m * 1e3
+                ax.plot(br.curve_frequency_Hz, np.where(br.curve_stable, d, np.nan), "-", color=col, lw=1.0,
+                        label=f"model {br.name} branch ({br.kind}), {amp / 1e3:g} kV")
+                ax.plot(br.curve_frequency_Hz, np.where(~br.curve_stable, d, np.nan), ":", color=col, lw=0.8)
+            qp = [r for r in sweep.responses if r.branch == "integration"]
+            if qp:
+                ax.errorbar([r.frequency_Hz for r in qp], [r.d_rms_m * 1e3 for r in qp],
+                            yerr=[[(r.d_rms_m - r.d_rms_min_m) * 1e3 for r in qp],
+                                  [(r.d_rms_max_m - r.d_rms_m) * 1e3 for r in qp]],
+                            fmt=".", color="C3", ms=3, lw=0.6, label="model, quasi-periodic (mean, min/max)")
+            for b in sweep.bands:
+                if b.kind != "periodic":
+                    ax.axvspan(b.f_start_Hz, b.f_end_Hz, color={"period-doubled": "C1", "coexisting": "C4"}
+                               .get(b.kind, "C3"), alpha=0.10, lw=0)
+            peak = sweep.resonance_peak(True)
+            ax.axvline(peak["frequency_Hz"], color="C0", lw=0.6, ls="--")
+        used = np.array(item["used"])
+        for kind, (marker, col) in KIND_MARKERS.items():
+            sel = used == kind
+            if np.any(sel):
+                ax.plot(sine.frequency_Hz[sel], sine.d_rms_m[sel] * 1e3, marker, color="k" if kind != "left out" else col,
+                        mfc="none" if kind != "periodic" else "k", ms=6,
+                        label=f"data, fitted as {kind}" if kind != "left out" else "data, left out (no periodic response)")
     for entry in result.evaluation.get("frequency_response", []):
         for res in entry.get("resonance", []):
-            ax.axvline(res["measured_peak_Hz"], color="k", lw=0.6, ls="--")
-            ax.axvline(res["simulated_peak_Hz"], color="C0", lw=0.6, ls="--")
-    ax.set_xlabel("frequency (Hz)")
+            if res.get("measured"):
+                ax.axvline(res["measured_peak_Hz"], color="k", lw=0.6, ls="--")
+    ax.set_xlabel("excitation frequency (Hz)")
     ax.set_ylabel("d_rms (mm), eq. 21")
-    ax.set_title(f"{result.parameters.name}: frequency response (dashed: peaks, data black / model blue)")
+    ax.set_title(f"{result.parameters.name}: frequency response (dashed: peak, model blue / data black when measured)")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    handles, labels = ax.get_legend_handles_labels()
+    seen = {}
+    for h, lab in zip(handles, labels):
+        seen.setdefault(lab, h)
+    ax.legend(seen.values(), seen.keys(), fontsize=7)
     fig.savefig(path, dpi=110)
     return Path(path)
 
 
 def plot_sine_series(result: IdentificationResult, path: str | Path) -> Path | None:
-    """Sampled sine records (the paper's 2 Hz and 12.5 Hz validation) vs the model."""
+    """Sampled sine records vs the model, aligned on the phase of u^2 (the recorded voltage's 2f
+    component: right for U sin and |U sin| alike), with the voltage below."""
     items = [s for item in result.curves.get("sines", []) for s in item["series"]]
     if not items:
         return None
@@ -168,11 +215,19 @@ def plot_sine_series(result: IdentificationResult, path: str | Path) -> Path | N
         ser = item["series"]
         show = ser.time_s <= ser.time_s[0] + max(3.0 / ser.frequency_Hz, 0.2)
         ax.plot(ser.time_s[show], ser.displacement_m[show] * 1e3, ".", ms=2, color="0.55", label="data")
-        ax.plot(ser.time_s[show], item["model_m"][show] * 1e3, "-", color="C0", label="model")
-        ax.set_title(f"{ser.frequency_Hz:g} Hz: RMS error {item['rms_error_um']:.3g} um")
+        if item.get("model_m") is not None:
+            ax.plot(ser.time_s[show], item["model_m"][show] * 1e3, "-", color="C0",
+                    label=f"model ({item.get('kind')})")
+            ax.set_title(f"{ser.frequency_Hz:g} Hz: RMS error {item['rms_error_um']:.3g} um (model aligned on the "
+                         "phase of u^2)")
+        else:
+            ax.set_title(f"{ser.frequency_Hz:g} Hz: no periodic model response ({item.get('note', '')})")
         ax.set_ylabel("d (mm)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        ax2 = ax.twinx()
+        ax2.plot(ser.time_s[show], ser.voltage_V[show] / 1e3, "-", color="C1", lw=0.5, alpha=0.5)
+        ax2.set_ylabel("u (kV)", color="C1")
+        ax.legend(fontsize=8, loc="upper right")
     axes[-1, 0].set_xlabel("time (s)")
     fig.savefig(path, dpi=110)
     return Path(path)
@@ -199,18 +254,38 @@ def _ci_text(stats, name, scale=1.0):
     return f"[{_fmt(lo * scale)}, {_fmt(hi * scale)}]", f"{100 * rel:.2g} %"
 
 
+def _ci_cells(ci, scale):
+    if ci is None:
+        return "-", "-"
+    _v, lo, hi, rel = ci
+    if not math.isfinite(rel):
+        return "not identifiable", "inf"
+    return f"[{_fmt(lo * scale)}, {_fmt(hi * scale)}]", f"{100 * rel:.2g} %"
+
+
+WAVEFORM_TEXT = {"sine": "u = U sin(2 pi f t)", "abs_sine": "u = |U sin(2 pi f t)| (unipolar amplifier)"}
+
+
 def report_markdown(result: IdentificationResult, figures: dict, timings_extra: dict | None = None) -> str:
     """The text of ``report.md``."""
     p = result.parameters
     exp = result.experiments
-    st, dy = result.static, result.dynamic
+    st, dy, jt = result.static, result.dynamic, result.joint
+    stats = result.statistics
     out = [f"# Identification report: membrane {p.name}", ""]
     out.append(f"Data: `{exp.folder}` ({exp.summary()}). Generated {time.strftime('%Y-%m-%d %H:%M:%S')} by "
                "`dea_ros.identify` (paper sections IV-B/C, eqs. 19-24).")
+    for sine in exp.sines:
+        out.append(f"Sine excitation ({Path(sine.source).name}): {WAVEFORM_TEXT.get(sine.waveform, sine.waveform)}, "
+                   "U = amplitude_V; the model sees u^2 only (eq. 6), the same for both waveforms. d_rms: eq. 21 "
+                   "over whole periods around the rest position d0.")
     out.append("")
     out.append(f"Methods: static fit **{result.options.get('static_method')}**, dynamic fit "
-               f"**{result.options.get('dynamic_method')}**, frequency response by "
-               f"**{result.options.get('frequency_method')}** ({result.options.get('n_harmonics')} harmonics).")
+               f"**{result.options.get('dynamic_method')}** (weights {result.options.get('weights')}), frequency "
+               f"response by **{result.options.get('frequency_method')}** ({result.options.get('n_harmonics')} "
+               f"harmonics), refinement **{result.options.get('refine', 'none')}**"
+               + (" (all identifiable parameters jointly, statistical weights: the values and intervals below)"
+                  if jt is not None else "") + ".")
     out.append("")
     # ---- warnings first: they matter most
     out.append("## Warnings")
@@ -232,44 +307,78 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
     out.append(f"| Plate radius (given) | r | {_fmt(p.plate_radius_m * 1e3)} | mm | | |")
     out.append(f"| Electrode width (given) | l0 | {_fmt(p.electrode_width_m * 1e3)} | mm | | |")
     out.append(f"| Mass (given) | m | {_fmt(p.mass_kg * 1e3)} | g | | |")
-    sstats = st.statistics if st is not None else None
-    ci, rel = _ci_text(sstats, "eps_r")
+    eps_stats = stats if (stats is not None and "eps_r" in stats.names) else (st.statistics if st else None)
+    ci, rel = _ci_text(eps_stats, "eps_r")
     out.append(f"| Relative permittivity | eps_r | {_fmt(p.relative_permittivity)} | - | {ci} | {rel} |")
-    dstats = dy.statistics if dy is not None else None
     for name, sym, unit, scale in (("k1_Pa", "k1", "MPa", 1e-6), ("eta1_Pa_s", "eta1", "MPa s", 1e-6),
                                    ("eta2_Pa_s", "eta2", "kPa s", 1e-3)):
-        ci, rel = _ci_text(dstats, name, scale)
+        ci, rel = _ci_text(stats, name, scale)
         out.append(f"| Viscoelastic model | {sym} | {_fmt(getattr(p, name) * scale)} | {unit} | {ci} | {rel} |")
+    # hyperelastic stress at lambda_r = 1, derivatives w.r.t. lambda_r as eq. 10 is written
     combos = stress_combinations(p.beta_Pa, p.gamma_Pa)
-    if dy is not None and dy.curvature_fitted:
-        ci, rel = _ci_text(dstats, "sigma_h''(1)_Pa", 1e-3)
-        out.append(f"| Hyperelastic stress (identified, dynamic) | sigma_h''(1) | {_fmt(combos[2] * 1e-3)} | kPa | "
-                   f"{ci} | {rel} |")
-    if st is not None and st.method == "lsq":
-        for k, (name, sym) in enumerate((("sigma_h(1)_Pa", "sigma_h(1) = sum(beta - gamma)"),
-                                         ("sigma_h'(1)_Pa", "sigma_h'(1) = sum i (beta + gamma)"))):
-            ci, rel = _ci_text(sstats, name, 1e-3)
-            out.append(f"| Hyperelastic stress (identified) | {sym} | {_fmt(combos[k] * 1e-3)} | kPa | {ci} | {rel} |")
+    s_stats = stats if (stats is not None and "sigma_h(1)_Pa" in stats.names) else (st.statistics if st else None)
+    c0 = linear_combination_ci(s_stats, {"sigma_h(1)_Pa": 1.0})
+    c1 = linear_combination_ci(s_stats, {"sigma_h'(1)_Pa": 2.0})
+    out.append(f"| Hyperelastic stress (eq. 10) | sigma_h(lambda_r = 1) | {_fmt(combos[0] * 1e-3)} | kPa | "
+               + " | ".join(_ci_cells(c0, 1e-3)) + " |")
+    out.append(f"| Hyperelastic stress slope | d sigma_h / d lambda_r at 1 | {_fmt(2 * combos[1] * 1e-3)} | kPa | "
+               + " | ".join(_ci_cells(c1, 1e-3)) + " |")
+    curvature = 2 * combos[1] + 4 * combos[2]
+    if result.curvature_identified:
+        c2 = linear_combination_ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0})
+        flag = "" if result.curvature_status == "identified" else f" ({result.curvature_status})"
+        out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | {_fmt(curvature * 1e-3)}{flag} | "
+                   "kPa | " + " | ".join(_ci_cells(c2, 1e-3)) + " |")
+    else:
+        out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | **not identified** (base value "
+                   f"{_fmt(curvature * 1e-3)} written) | kPa | - | - |")
     for i in range(3):
         out.append(f"| Ogden coefficient | beta_{i + 1} | {_fmt(p.beta_Pa[i] * 1e-3)} | kPa | see note | |")
     for i in range(3):
         out.append(f"| Ogden coefficient | gamma_{i + 1} | {_fmt(p.gamma_Pa[i] * 1e-3)} | kPa | see note | |")
     out.append("")
+    out.append("Derivatives are taken w.r.t. lambda_r as eq. 10 is written (sigma_h = sum beta_i lambda_r^2i - "
+               "gamma_i lambda_r^-2i). The fits work in s = lambda_r^2 (eq. 20's s(d)): d sigma_h/d lambda_r = "
+               "2 d sigma_h/ds and d2 sigma_h/d lambda_r2 = 2 d sigma_h/ds + 4 d2 sigma_h/ds2 at lambda_r = 1; "
+               f"here d sigma_h/ds = {_fmt(combos[1] * 1e-3)} kPa, d2 sigma_h/ds2 = {_fmt(combos[2] * 1e-3)} kPa"
+               + ("" if result.curvature_identified else " (not identified: the base value)") + ".")
+    out.append("")
     if st is not None:
         og = st.ogden_statistics
         sv = og.singular_values / og.singular_values[0]
-        curv = ""
-        if dy is not None and dy.curvature_fitted:
-            curv = (" sigma_h''(1) (the curvature) was identified by the dynamic fit from the large-amplitude "
-                    f"response: {_fmt(combos[2] * 1e-3)} kPa.")
         out.append(
             "Note on beta/gamma: the deflections probe sigma_h only near stretch 1. The normalised singular values "
             "of the Jacobian of the static residuals w.r.t. (beta_1..3, gamma_1..3, eps_r) are "
             + ", ".join(f"{x:.2g}" for x in sv)
-            + f": the data determine {int(np.count_nonzero(sv > 1e-3))} combinations, in practice sigma_h(1), "
-            f"sigma_h'(1) and eps_r. The values above are one representative ({st.representation}); any "
-            "beta/gamma with the same sigma_h(1), sigma_h'(1) fits the static data equally well." + curv
+            + f": the static data determine {int(np.count_nonzero(sv > 1e-3))} combinations, in practice sigma_h(1), "
+            f"its slope and eps_r (the curvature only from large oscillations near resonance). The values above are "
+            f"one representative ({st.representation}); any beta/gamma with the same identified combinations fits "
+            "the data equally well."
         )
+        out.append("")
+    # ---- sine records: what they show and what they were fitted with
+    if result.classification:
+        out.append("## Sine records: what they show and how they were fitted")
+        out.append("")
+        out.append("Kinds: periodic = period of u^2 (T/2), period-doubled = period T, quasi-periodic = no period "
+                   "(the data kind from the sampled record where one exists; the model kind from the realised response "
+                   "of the fitted model in a slow upward sweep).")
+        out.append("")
+        out.append("| f [Hz] | measured d_rms [um] | data | model | fitted as | model d_rms [um] | (model - data) / sigma |")
+        out.append("|---|---|---|---|---|---|---|")
+        ev_fr = {e["source"]: e for e in result.evaluation.get("frequency_response", [])}
+        curves = {id(c["sine"]): c for c in result.curves.get("sines", [])}
+        for c in result.classification:
+            sine = [x for x in exp.sines if x.source == c["source"]][0]
+            item = curves.get(id(sine))
+            model = item["model_at_data_m"][c["index"]] if item is not None else float("nan")
+            z = "-"
+            if sine.d_rms_std_m is not None and np.isfinite(model):
+                z = f"{(model - c['measured_rms_m']) / sine.d_rms_std_m[c['index']]:+.2f}"
+            used = c["used"] if c["used"] != "left out" else f"left out: {c.get('reason', '')}"
+            out.append(f"| {c['frequency_Hz']:g} | {c['measured_rms_m'] * 1e6:.4g} | {c.get('data_kind') or '-'} | "
+                       f"{c.get('model_kind') or '-'} | {used} | {_fmt(model * 1e6) if np.isfinite(model) else '-'} | {z} |")
+        _ = ev_fr
         out.append("")
     # ---- metrics
     out.append("## Quality of the fit")
@@ -284,29 +393,42 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
         out.append("")
         out.append("| Record | IAE [mm s] | ISE [mm^2 s] | ITAE [mm s^2] | RMS error [um] | max error [um] | noise [um] |")
         out.append("|---|---|---|---|---|---|---|")
-        for s in ev["steps"]:
-            out.append(f"| {Path(s['source']).name} | {_fmt(s['IAE_mm_s'])} | {_fmt(s['ISE_mm2_s'])} | "
-                       f"{_fmt(s['ITAE_mm_s2'])} | {_fmt(s['rms_error_um'])} | {_fmt(s['max_error_um'])} | "
-                       f"{_fmt(s['noise_um'])} |")
+        for s_ in ev["steps"]:
+            out.append(f"| {Path(s_['source']).name} | {_fmt(s_['IAE_mm_s'])} | {_fmt(s_['ISE_mm2_s'])} | "
+                       f"{_fmt(s_['ITAE_mm_s2'])} | {_fmt(s_['rms_error_um'])} | {_fmt(s_['max_error_um'])} | "
+                       f"{_fmt(s_['noise_um'])} |")
         out.append("")
     if "transient_solver_max_difference_um" in ev:
         out.append(f"Fast transient solver (used in the fit) vs adaptive integration at the optimum: max "
                    f"difference {_fmt(ev['transient_solver_max_difference_um'])} um.")
         out.append("")
     for entry in ev.get("frequency_response", []):
-        out.append(f"Frequency response ({Path(entry['source']).name}, {entry['frequencies']} frequencies): RMS error "
+        norm = entry.get("normalised_rms_error")
+        out.append(f"Frequency response ({Path(entry['source']).name}, {entry['frequencies']} frequencies, "
+                   f"{entry.get('compared', entry['frequencies'])} compared with a periodic model response): RMS error "
                    f"{_fmt(entry['rms_error_um'])} um, max {_fmt(entry['max_error_um'])} um "
-                   f"(max {_fmt(entry['max_relative_error_percent'], 3)} % of the RMS).")
+                   f"(max {_fmt(entry['max_relative_error_percent'], 3)} % of the RMS)"
+                   + (f"; RMS of (model - data) / d_rms_std: {_fmt(norm, 3)}" if norm is not None else "") + ".")
         out.append("")
         if entry.get("resonance"):
             out.append("| Amplitude | Resonance peak, model [Hz] | Resonance peak, data [Hz] | Error (Table IV) |")
             out.append("|---|---|---|---|")
             for r in entry["resonance"]:
-                out.append(f"| {r['amplitude_V'] / 1e3:g} kV | {_fmt(r['simulated_peak_Hz'])} | "
-                           f"{_fmt(r['measured_peak_Hz'])} | {_fmt(r['error_percent'], 3)} % |")
+                meas = (_fmt(r["measured_peak_Hz"]) if r.get("measured") else f"not measured ({r.get('measured_note')})")
+                errs = f"{_fmt(r['error_percent'], 3)} %" if r.get("error_percent") is not None else "-"
+                out.append(f"| {r['amplitude_V'] / 1e3:g} kV | {_fmt(r['simulated_peak_Hz'], 6)} "
+                           f"({_fmt(r['simulated_peak_rms_m'] * 1e6)} um) | {meas} | {errs} |")
+            out.append("")
+            out.append("The model peak is located on the continued branch (the extremum of d_rms along it), not on a "
+                       "frequency grid.")
+            out.append("")
+        if entry.get("bands"):
+            out.append("Bands of the fitted model (what a measurement sees): "
+                       + "; ".join(f"{b['f_start_Hz']:.3f}-{b['f_end_Hz']:.3f} Hz {b['kind']}" for b in entry["bands"])
+                       + ".")
             out.append("")
         for k, v in entry.get("series_rms_error_um", {}).items():
-            out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um")
+            out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um (model aligned on the phase of u^2)")
         if entry.get("series_rms_error_um"):
             out.append("")
     # ---- fits
@@ -318,16 +440,16 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             out.append("")
             out.append("| Start | Result |")
             out.append("|---|---|")
-            for s in st.starts:
-                out.append(f"| {s.get('start')} | " + ", ".join(f"{k} = {_fmt(v)}" for k, v in s.items()
-                                                             if k != "start") + " |")
+            for s_ in st.starts:
+                out.append(f"| {s_.get('start')} | " + ", ".join(f"{k} = {_fmt(v)}" for k, v in s_.items()
+                                                              if k != "start") + " |")
         out.append("")
         out.append(_stats_table(st.statistics))
     if dy is not None:
-        out.append("## Dynamic fit (eqs. 22-24)")
+        out.append("## Dynamic fit, stage 1 (eqs. 22-24)" if jt is not None else "## Dynamic fit (eqs. 22-24)")
         out.append("")
         pts = ", ".join(f"{f:g}" for f in dy.fit_frequencies_Hz)
-        out.append(f"Method `{dy.method}`, frequency response by `{dy.frequency_method}`; fit frequencies {pts} Hz; "
+        out.append(f"Method `{dy.method}`, frequency response by `{dy.frequency_method}`; fit frequencies {pts or 'none'} Hz; "
                    f"cost J (eq. 22) = {_fmt(dy.cost)} (step {_fmt(dy.step_cost)}, frequency {_fmt(dy.frequency_cost)}); "
                    f"{dy.n_evaluations} evaluations ({dy.n_jacobians} with Jacobian).")
         init = dy.initial
@@ -335,7 +457,20 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
         out.append(f"Initial guess from the {init.get('source')}: oscillation {_fmt(init.get('oscillation_Hz'))} Hz, "
                    f"decay {_fmt(init.get('decay_rate_per_s'))} 1/s, then a scan of eta1/k1.")
         out.append("")
-        out.append(_stats_table(dy.statistics))
+        if jt is None:
+            out.append(_stats_table(dy.statistics))
+    if jt is not None:
+        out.append("## Joint refinement (all identifiable parameters, statistical weights)")
+        out.append("")
+        blocks = ", ".join(f"{k} {_fmt(v)}" for k, v in jt.block_chi2.items())
+        out.append(f"chi-square {_fmt(jt.cost)} for {jt.dof} degrees of freedom ({blocks}); fitted records: "
+                   + ", ".join(f"{pt.frequency_Hz:g} Hz ({pt.kind})" for pt in jt.frequency_points)
+                   + f"; {jt.n_evaluations} evaluations, {_fmt(jt.wall_time_s, 3)} s. Weights: static points "
+                   f"{_fmt(jt.sigmas['static_m'] * 1e6)} um (static fit residual), step samples "
+                   + ", ".join(_fmt(x * 1e6) for x in jt.sigmas["step_m"]) + " um (laser noise), RMS values their "
+                   "stated uncertainty. Stress combinations in s = lambda_r^2.")
+        out.append("")
+        out.append(_stats_table(jt.statistics))
     # ---- timings
     out.append("## Timings")
     out.append("")

@@ -66,6 +66,9 @@ __all__ = [
     "ogden_warning",
     "COMBINATION_MATRIX",
     "STATIC_METHODS",
+    "static_displacement_jacobian",
+    "THIRD_DERIVATIVE_ROW",
+    "EXTENDED_COMBINATION_MATRIX",
 ]
 
 STATIC_METHODS = ("lsq", "paper")
@@ -77,6 +80,11 @@ COMBINATION_MATRIX = np.array([
     [1.0, 2.0, 3.0, 1.0, 2.0, 3.0],
     [0.0, 2.0, 6.0, -2.0, -6.0, -12.0],
 ])
+#: d^3 sigma_h / ds^3 at s = 1 as a linear form of (beta_1..3, gamma_1..3) (eq. 10): the next term
+#: after sigma_h''(1), seen by the largest oscillations only (the joint refinement's nuisance parameter).
+THIRD_DERIVATIVE_ROW = np.array([0.0, 0.0, 6.0, 6.0, 24.0, 60.0])
+#: COMBINATION_MATRIX with the third derivative appended (4 x 6).
+EXTENDED_COMBINATION_MATRIX = np.vstack([COMBINATION_MATRIX, THIRD_DERIVATIVE_ROW])
 _SIGMA_REF_PA = 1e5  # scale of the stress parameters in the optimizers
 
 
@@ -110,8 +118,11 @@ class OgdenRepresentation:
     to O((s-1)^3) over the data.
     """
 
-    def __init__(self, prestretch: float, n_constraints: int, prior_beta_gamma=None):
-        a = COMBINATION_MATRIX[:n_constraints]
+    def __init__(self, prestretch: float, n_constraints: int, prior_beta_gamma=None, matrix=None):
+        full = COMBINATION_MATRIX if matrix is None else np.asarray(matrix, float)
+        if n_constraints > 3 and prior_beta_gamma is None:
+            raise ValueError("more than 3 constraints need prior (beta, gamma): the mu_i of eqs. 8-9 have 3 dims")
+        a = full[:n_constraints]
         if prior_beta_gamma is not None:
             p0 = np.asarray(prior_beta_gamma, float).reshape(6)
             gain = a.T @ np.linalg.inv(a @ a.T)                  # (6, n)
@@ -132,6 +143,11 @@ class OgdenRepresentation:
     def combinations(self, sigma_fitted) -> np.ndarray:
         """All three combinations (sigma_h(1), sigma_h'(1), sigma_h''(1)) of the representation."""
         return COMBINATION_MATRIX @ self.beta_gamma(sigma_fitted)
+
+    @property
+    def gain(self) -> np.ndarray:
+        """d(beta, gamma)/d(fitted combinations), (6, n): the (beta, gamma) direction of each one."""
+        return self._gain.copy()
 
     def combination_gain(self) -> np.ndarray:
         """d(all three combinations)/d(fitted combinations), (3, n)."""
@@ -277,6 +293,12 @@ class _StaticProblem:
         dfdd = model.static_stiffness_N_per_m(d, self.u2)
         dfdd = np.where(d > 0.0, dfdd, np.inf)
         return -np.column_stack(cols) / dfdd[:, None]
+
+
+def static_displacement_jacobian(params: MembraneParameters, data: StaticData, displacement_m) -> np.ndarray:
+    """d(rest displacement)/d(beta_1..3, gamma_1..3, eps_r) at the static points ``data`` whose
+    equilibria under ``params`` are ``displacement_m`` (eq. 20, implicit differentiation), (n, 7)."""
+    return _StaticProblem(params, data).ogden_jacobian(params, np.asarray(displacement_m, float))
 
 
 def _check_static_data(data: StaticData, n_params: int) -> None:

@@ -9,31 +9,37 @@
 * a 2.2 kV voltage step sampled at 1 kHz: ``step_time_s`` (0.2 s) of baseline at 0 V, then
   ``step_duration_s`` (4 s) after the step. The voltage column is the commanded voltage
   (zero-order hold, as the DAQ outputs it).
-* sines of 2.5 kV amplitude across 0.2-40 Hz: the periodic steady state, sampled at 1 kHz over
-  a whole number of periods (at least ``sine_record_s``), noise added to every sample, and the
-  RMS of eq. 21 computed from the noisy samples around the rest position d0 measured (also
-  with noise) as the mean of ``baseline_samples`` samples at 0 V. The standard uncertainty of
-  each RMS value (sample noise and baseline error, linearised) is written as d_rms_std_m.
-  Sampled records are written for ``series_frequencies_Hz`` (the paper's 2 and 12.5 Hz
-  validation records).
+* sines of 2.5 kV amplitude across 0.2-40 Hz, visited in ascending order as a slow upward sweep
+  on the rig: at each frequency the response the rig settles on, sampled at 1 kHz over the
+  whole excitation periods covering at least ``sine_record_s`` (floor(n T f_s) samples), noise
+  added to every sample. The RMS of eq. 21 (and its standard uncertainty, written as
+  d_rms_std_m) is computed from the noisy samples exactly as for a measured record
+  (:func:`~dea_ros.identify.experiments.rms_statistics`: whole periods with interpolated
+  boundaries, laser noise removed) around the rest position d0 measured (also with noise) as
+  the mean of ``baseline_samples`` samples at 0 V. Sampled records are written for
+  ``series_frequencies_Hz`` (the paper's 2 and 12.5 Hz validation records; "all" for every
+  frequency). ``waveform``: the applied voltage, ``"sine"`` (U sin wt, the paper) or
+  ``"abs_sine"`` (|U sin wt|, what the rig's unipolar amplifier applies; same u^2).
 
-Accuracy: the responses come from the accurate adaptive integrator (DOP853), never from the
+Accuracy: every response comes from the accurate adaptive integrator (DOP853), never from the
 solvers the fit uses (collocation for the step, harmonic balance for the sines): the step by
 :func:`~dea_ros.solvers.integrate.simulate` (rtol 1e-10). For the sines, to avoid integrating
-through the slow viscoelastic transient (eta1/k1 up to ~24 s), the periodic orbit is found by
-single shooting on DOP853 (rtol 1e-10; Newton on the one-period flow map with the monodromy
-matrix from the variational equations), started from a harmonic-balance guess; its Floquet
-multipliers are checked. It agrees with brute-force integration to steady state to < 0.01 nm.
-Where the orbit is unstable (folds, the parametric resonance near twice the resonance) or
-shooting fails, the response is integrated from rest until it is periodic over two excitation
-periods (so a period-doubled response, as the rig would show, converges too): slow, but only
-there.
+through the slow viscoelastic transient, the periodic orbit (of period T: the T/2 orbit or a
+period-doubled one) is found by single shooting on DOP853
+(:func:`~dea_ros.solvers.steady_state.shoot_periodic_orbit`, rtol 1e-10), started from the
+orbit a harmonic-balance sweep of the true parameters says the rig settles on (the upward-sweep
+branch: period-doubled in a period-doubling band); its Floquet multipliers are checked (stable).
+It agrees with brute-force integration to steady state to < 0.01 nm. Where no periodic orbit is
+stable (a torus band) the motion is integrated (100 periods to settle, then the record with
+DOP853) and recorded as it is: quasi-periodic. If shooting fails, brute-force integration from
+rest over two excitation periods is used (slow, but only there).
 
 The true parameters are written to ``truth.yaml`` next to the manifest, which does not
 reference it: identification never reads it.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,19 +49,20 @@ import numpy as np
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import HarmonicBalanceError, solve_native
-from ..solvers.inputs import PeriodicInput, SinePeriodic, StepVoltage
-from ..model.dynamics import DEAModel
-from ..solvers.integrate import simulate, state_scale
-from scipy.integrate import solve_ivp
-from ..solvers.steady_state import SteadyStateError, integrate_to_steady_state
+from ..solvers.continuation import frequency_sweep
+from ..solvers.inputs import PeriodicInput, SinePeriodic, SineVoltage, StepVoltage
+from ..solvers.integrate import simulate
+from ..solvers.realised import SETTLE_PERIODS, realised_response
+from ..solvers.steady_state import SteadyStateError, integrate_to_steady_state, shoot_periodic_orbit
 from .experiments import (
     GEOMETRY_FIELDS,
+    WAVEFORMS,
     ExperimentSet,
     SineData,
     SineSeries,
     StaticData,
     StepData,
+    rms_statistics,
     write_experiment_set,
 )
 
@@ -99,81 +106,68 @@ class _SineOverPeriods(PeriodicInput):
         return False
 
 
-@dataclass
-class _Orbit:
-    """A periodic orbit from the accurate integrator: dense output over one period."""
-
-    period_s: float
-    dense: Callable
-    multipliers: np.ndarray
-
-    def evaluate(self, t_s) -> np.ndarray:
-        return self.dense(np.mod(np.asarray(t_s, float), self.period_s))
-
-
-def _shooting(params: MembraneParameters, amplitude_V: float, frequency_Hz: float, x0: np.ndarray,
-              rtol: float = 1e-10, tol: float = 1e-10, max_iter: int = 8) -> _Orbit:
-    """Periodic orbit by single shooting on the accurate integrator (DOP853).
-
-    Newton on P(x0) = x0, P the one-period flow map, with the monodromy matrix from the
-    variational equations (analytic df/dx) integrated alongside. Converged when the
-    scaled mismatch |P(x0) - x0| is below ``tol``; the Floquet multipliers are the
-    eigenvalues of the monodromy matrix.
-    """
-    model = DEAModel.from_parameters(params)
-    period = 1.0 / frequency_Hz
-    omega = 2.0 * np.pi * frequency_Hz
-    scale = state_scale(params)
-    atol = np.r_[1e-12 * scale, np.full(9, 1e-12)]
-
-    def fun(t, y):
-        u = amplitude_V * np.sin(omega * t)
-        x = y[:3]
-        f = model.rhs(x, u)
-        a = model.jacobian(x, u)
-        return np.r_[f, (a @ y[3:].reshape(3, 3)).reshape(-1)]
-
-    x = np.asarray(x0, float).copy()
-    for _ in range(max_iter):
-        sol = solve_ivp(fun, (0.0, period), np.r_[x, np.eye(3).reshape(-1)], method="DOP853",
-                        rtol=rtol, atol=atol)
-        if not sol.success:
-            raise SteadyStateError(f"shooting integration failed at {frequency_Hz:g} Hz: {sol.message}")
-        end = sol.y[:3, -1]
-        mono = sol.y[3:, -1].reshape(3, 3)
-        mismatch = end - x
-        if np.max(np.abs(mismatch / scale)) < tol:
-            break
-        x = x - np.linalg.solve(mono - np.eye(3), mismatch)
-    else:
-        raise SteadyStateError(f"shooting did not converge at {frequency_Hz:g} Hz "
-                               f"(mismatch {np.max(np.abs(mismatch / scale)):.3g} scaled)")
-    dense = solve_ivp(lambda t, y: model.rhs(y, amplitude_V * np.sin(omega * t)), (0.0, period), x,
-                      method="DOP853", rtol=rtol, atol=1e-12 * scale, dense_output=True).sol
-    return _Orbit(period, dense, np.linalg.eigvals(mono))
-
-
-def _steady_state(params: MembraneParameters, amplitude_V: float, frequency_Hz: float, hb_guess):
-    """Accurate periodic steady state (see the module docstring).
-
-    Returns (orbit, periods, hb_state): the orbit has period ``periods`` / f.
-    """
+def _record(params: MembraneParameters, amplitude_V: float, frequency_Hz: float, response, seed_solution,
+            ts: np.ndarray) -> tuple[np.ndarray, str]:
+    """True displacement at the sample times ``ts`` (from 0 at phase 0 of the sine) and its kind."""
     sine = SinePeriodic(amplitude_V, frequency_Hz)
-    hb_state = None
-    try:
-        hb = solve_native(params, sine, n_harmonics=12, x_guess=hb_guess, stability=False)
-        hb_state = hb.state
-        orbit = _shooting(params, amplitude_V, frequency_Hz, hb.evaluate(0.0)[:, 0])
-        if np.max(np.abs(orbit.multipliers)) < 1.0:
-            return orbit, 1, hb_state
-    except (HarmonicBalanceError, SteadyStateError):
-        pass
-    # Unstable or unknown orbit: brute-force integration from rest over two excitation periods
-    # (a period-doubled response converges too).
+    if response.kind != "quasi-periodic" and seed_solution is not None:
+        try:
+            orbit = shoot_periodic_orbit(params, sine, seed_solution.evaluate(0.0)[:, 0])
+            if orbit.stable:
+                return orbit.evaluate(ts)[0], ("period-doubled" if orbit.odd_harmonic_ratio() > 1e-3
+                                               else "periodic")
+        except SteadyStateError:
+            pass
+    if seed_solution is not None:  # no stable periodic orbit: settle on the attractor, then record
+        d0 = float(static_equilibrium(params, 0.0).displacement_m)
+        x0 = seed_solution.evaluate(0.0)[:, 0] * np.array([1.001, 1.0, 1.0])
+        settled = realised_response(params, sine, x0, d0, settle_periods=SETTLE_PERIODS, window_periods=1)
+        period = 1.0 / frequency_Hz
+        t_rec = settled.window_s[1]  # the integration ends a whole number of periods after phase 0
+        start = float(np.ceil(t_rec / period - 1e-9)) * period
+        resp = simulate(params, SineVoltage(amplitude_V, frequency_Hz), start + ts[-1] + 1e-9, t_eval=start + ts,
+                        x0=settled.final_state, t_start_s=t_rec, rtol=1e-10, atol_scale=1e-10)
+        return resp.displacement_m, "quasi-periodic"
     inp = _SineOverPeriods(amplitude_V, frequency_Hz, 2)
     sol = integrate_to_steady_state(params, inp, tol=1e-8, rtol=1e-10, samples_per_period=1025,
                                     max_time_s=1200.0)
-    return sol, 2, hb_state
+    return sol.evaluate(ts)[0], "integrated from rest"
+
+
+@functools.lru_cache(maxsize=8)
+def _clean_step(params: MembraneParameters, step_voltage_V: float, step_time_s: float, step_duration_s: float,
+                sample_rate_Hz: float):
+    """(t, u, d) of the noise-free step record by adaptive integration (memoised: seeds share it)."""
+    t_end = step_time_s + step_duration_s
+    n = int(round(t_end * sample_rate_Hz)) + 1
+    t = np.arange(n) / sample_rate_Hz
+    signal = StepVoltage(step_voltage_V, step_time_s=step_time_s)
+    response = simulate(params, signal, t[-1], t_eval=t, rtol=1e-10, atol_scale=1e-10)
+    return t, np.asarray(signal(t), float), response.displacement_m
+
+
+@functools.lru_cache(maxsize=8)
+def _clean_sines(params: MembraneParameters, amplitude_V: float, frequencies_Hz: tuple, record_s: float,
+                 sample_rate_Hz: float) -> list:
+    """[(f, t, d, kind)] noise-free records of an upward sweep (module docstring; memoised)."""
+    freqs = np.asarray(frequencies_Hz, float)
+    sweep = frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), freqs, n_harmonics=12)
+    out = []
+    for f, resp in zip(freqs, sweep.responses):
+        pts = [p for b in sweep.branches for p in b.points
+               if abs(p.frequency_Hz - f) <= 1e-9 * f and (b.name == resp.branch or resp.branch == "integration")]
+        seed_pt = None
+        if pts:
+            seed_pt = min(pts, key=lambda p: abs(p.d_rms_m - resp.d_rms_m)) if resp.branch != "integration" else \
+                min(pts, key=lambda p: p.max_multiplier)
+        period = 1.0 / f
+        n_periods = max(1, math.ceil(record_s / period))
+        n_samples = int(math.floor(n_periods * period * sample_rate_Hz + 1e-9))
+        ts = np.arange(n_samples) / sample_rate_Hz
+        d_true, kind = _record(params, amplitude_V, float(f), resp,
+                               seed_pt.solution if seed_pt is not None else None, ts)
+        out.append((float(f), ts, d_true, kind))
+    return out
 
 
 def synthesize_experiments(
@@ -193,6 +187,7 @@ def synthesize_experiments(
     sine_record_s: float = 2.0,
     baseline_samples: int = 1000,
     progress: Callable[[dict], None] | None = None,
+    waveform: str = "sine",
 ) -> ExperimentSet:
     """The experiment set (in memory) the rig would record for ``params`` with laser noise ``noise_m``.
 
@@ -221,48 +216,53 @@ def synthesize_experiments(
     if progress:
         progress({"stage": "synth", "what": "static", "points": static.n_points})
     # ---- step (eq. 23)
-    t_end = step_time_s + step_duration_s
-    n = int(round(t_end * sample_rate_Hz)) + 1
-    t = np.arange(n) / sample_rate_Hz
-    step_signal = StepVoltage(step_voltage_V, step_time_s=step_time_s)
-    response = simulate(params, step_signal, t[-1], t_eval=t, rtol=1e-10, atol_scale=1e-10)
-    step = StepData(t, np.asarray(step_signal(t), float),
-                    response.displacement_m + rng.normal(0.0, noise_m, n),
+    t, u_step, d_step = _clean_step(params, float(step_voltage_V), float(step_time_s), float(step_duration_s),
+                                    float(sample_rate_Hz))
+    n = t.size
+    step = StepData(t, u_step, d_step + rng.normal(0.0, noise_m, n),
                     mass_kg=mass, voltage_hold="zoh", source="synthetic step")
     if progress:
         progress({"stage": "synth", "what": "step", "samples": n})
-    # ---- sines (eqs. 21, 24)
+    # ---- sines (eqs. 21, 24): an upward sweep on the rig
     d_rest = float(static_equilibrium(params, 0.0).displacement_m)
     freqs = np.sort(np.asarray(sine_frequencies_Hz, float))
-    series_set = {round(float(f), 9) for f in series_frequencies_Hz}
-    rms, d0s, stds, series = [], [], [], []
-    guess = None
-    for f in freqs:
-        sol, periods, guess_new = _steady_state(params, sine_amplitude_V, float(f), guess)
-        guess = guess_new if guess_new is not None else None
-        period = periods / f
-        n_periods = max(1, math.ceil(sine_record_s / period))
-        n_samples = int(math.floor(n_periods * period * sample_rate_Hz + 1e-9))
-        ts = np.arange(n_samples) / sample_rate_Hz
-        d_true = sol.evaluate(ts)[0]
-        d_noisy = d_true + rng.normal(0.0, noise_m, n_samples)
+    if isinstance(series_frequencies_Hz, str):
+        if series_frequencies_Hz != "all":
+            raise ValueError(f"series_frequencies_Hz: a list of Hz or 'all', got {series_frequencies_Hz!r}")
+        series_set = {round(float(f), 9) for f in freqs}
+    else:
+        series_set = {round(float(f), 9) for f in series_frequencies_Hz}
+    if waveform not in WAVEFORMS:
+        raise ValueError(f"waveform: one of {WAVEFORMS}, got {waveform!r}")
+    rms, d0s, stds, series, kinds = [], [], [], [], []
+    clean = _clean_sines(params, float(sine_amplitude_V), tuple(float(f) for f in freqs), float(sine_record_s),
+                         float(sample_rate_Hz)) if freqs.size else []
+    d0_std = noise_m / math.sqrt(baseline_samples)
+    for f, ts, d_true, kind in clean:
+        d_noisy = d_true + rng.normal(0.0, noise_m, ts.size)
         d0 = d_rest + float(np.mean(rng.normal(0.0, noise_m, baseline_samples)))
-        dev = d_noisy - d0
-        rms.append(float(np.sqrt(np.mean(dev**2))))                        # eq. 21
+        u = sine_amplitude_V * np.sin(2 * np.pi * f * ts)
+        if waveform == "abs_sine":
+            u = np.abs(u)
+        record = SineSeries(float(f), ts, u, d_noisy, source=f"synthetic sine {f:g} Hz")
+        value, std = rms_statistics(record, d0, noise_m if noise_m > 0 else None, d0_std)    # eq. 21
+        rms.append(value)
         d0s.append(d0)
-        # standard uncertainty of that RMS: sample noise averaged over n_samples, and the
-        # baseline error of d0 (linearised: var(rms^2) / (2 rms)^2)
-        stds.append(float(noise_m * math.sqrt(1.0 / n_samples + (np.mean(dev) / rms[-1]) ** 2 / baseline_samples))
-                    if noise_m > 0 else 1e-12)
+        stds.append(std if std is not None else 1e-12)
+        kinds.append(kind)
         if round(float(f), 9) in series_set:
-            series.append(SineSeries(float(f), ts, sine_amplitude_V * np.sin(2 * np.pi * f * ts), d_noisy,
-                                     source=f"synthetic sine {f:g} Hz"))
+            series.append(record)
         if progress:
-            progress({"stage": "synth", "what": "sine", "frequency_Hz": float(f), "periods": periods,
+            progress({"stage": "synth", "what": "sine", "frequency_Hz": float(f), "kind": kind,
                       "rms_um": rms[-1] * 1e6})
     sines = [SineData(freqs, np.full(freqs.size, float(sine_amplitude_V)), np.asarray(rms), mass_kg=mass,
                       d0_m=np.asarray(d0s), series=tuple(series), source="synthetic sines",
-                      d_rms_std_m=np.asarray(stds))] if freqs.size else []
+                      d_rms_std_m=np.asarray(stds), waveform=waveform)] if freqs.size else []
+    notes = (f"synthetic data from dea_ros.identify.synth: membrane {params.name}, laser noise "
+             f"{noise_m:g} m, seed {seed}, waveform {waveform}; true parameters in truth.yaml (not read by identify)")
+    odd = [f"{f:g} Hz {k}" for f, k in zip(freqs, kinds) if k != "periodic"]
+    if odd:
+        notes += "; responses that are not periodic at T/2: " + ", ".join(odd)
     return ExperimentSet(
         membrane=params.name,
         geometry={k: getattr(params, k) for k in GEOMETRY_FIELDS},
@@ -271,8 +271,7 @@ def synthesize_experiments(
         steps=[step],
         sines=sines,
         sensor_noise_m=float(noise_m) if noise_m > 0 else None,
-        notes=(f"synthetic data from dea_ros.identify.synth: membrane {params.name}, laser noise "
-               f"{noise_m:g} m, seed {seed}; true parameters in truth.yaml (not read by identify)"),
+        notes=notes,
     )
 
 

@@ -5,7 +5,9 @@
 * :mod:`.harmonic_balance`: native HBM (collocation, eq. 16) with Floquet stability.
 * :mod:`.mousai_backend`: the paper's ``mousai.hb_time`` behind the same result type.
 * :mod:`.steady_state`: one front end ``solve_periodic(method=...)`` and forward integration to steady state.
-* :mod:`.continuation`: frequency sweeps with arclength continuation, folds, resonance peak.
+* :mod:`.continuation`: frequency sweeps with arclength continuation, folds, branch switching at
+  period doubling, bands and the realised response, the resonance peak on the branch.
+* :mod:`.realised`: the realised (e.g. quasi-periodic) response by fixed-step integration.
 """
 from .continuation import SweepResult, frequency_sweep, sweep_independent
 from .harmonic_balance import HarmonicBalanceError, PeriodicSolution, solve_native

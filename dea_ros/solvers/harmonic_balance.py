@@ -50,7 +50,11 @@ __all__ = [
     "periodic_interpolation_matrix",
     "solve_native",
     "floquet_multipliers",
+    "floquet_multipliers_batch",
+    "attach_floquet",
     "classify_stability",
+    "ModelSetup",
+    "model_setup",
 ]
 
 
@@ -74,6 +78,9 @@ def periodic_interpolation_matrix(m: int, phases) -> np.ndarray:
     """Matrix P with P @ x_samples = trigonometric interpolant at ``phases`` (m odd, periodic sinc)."""
     theta_k = 2.0 * np.pi * np.arange(m) / m
     delta = np.asarray(phases, dtype=float)[:, None] - theta_k[None, :]
+    # reduce to [-pi, pi): near 2 pi the kernel sin(m delta / 2) / (m sin(delta / 2)) would divide
+    # two rounding errors (a phase 1e-13 short of a whole period gave O(1) errors)
+    delta = np.mod(delta + np.pi, 2.0 * np.pi) - np.pi
     s = np.sin(0.5 * delta)
     small = np.abs(s) < 1e-14
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -102,6 +109,9 @@ class PeriodicSolution:
     wall_time_s: float
     multipliers: np.ndarray | None = None   # Floquet multipliers over the response period
     extra: dict = field(default_factory=dict)
+    #: Floquet multipliers over T/2 when a full-period solution (divisor 1) is in fact T/2-periodic
+    #: under a T/2-periodic u^2 (see :func:`attach_floquet`): its stability is judged on them
+    half_period_multipliers: np.ndarray | None = None
 
     @property
     def n_points(self) -> int:
@@ -170,16 +180,32 @@ class PeriodicSolution:
         top = float(np.max(amps)) if amps.size else 0.0
         return float(amps[-1] / top) if top > 0 else 0.0
 
+    def odd_harmonic_ratio(self) -> float:
+        """RMS of the odd harmonics of the response frequency over that of all non-constant ones.
+
+        For a full-period solution (``period_divisor`` 1) under a sine without offset this is
+        0 for the symmetric (T/2-periodic) orbit and O(1) for a period-doubled one.
+        """
+        c = np.fft.rfft(self.state[0])[1:]
+        total = float(np.sum(np.abs(c) ** 2))
+        return float(np.sqrt(np.sum(np.abs(c[0::2]) ** 2) / total)) if total > 0 else 0.0
+
+    @property
+    def stability_multipliers(self) -> np.ndarray | None:
+        """The multipliers that decide stability: over T/2 for a symmetric full-period solution."""
+        return self.half_period_multipliers if self.half_period_multipliers is not None else self.multipliers
+
     @property
     def stable(self) -> bool | None:
-        if self.multipliers is None:
+        mu = self.stability_multipliers
+        if mu is None:
             return None
-        return bool(np.max(np.abs(self.multipliers)) < 1.0)
+        return bool(np.max(np.abs(mu)) < 1.0)
 
     @property
     def stability(self) -> str:
         """See :func:`classify_stability`."""
-        return classify_stability(self.multipliers)
+        return classify_stability(self.stability_multipliers)
 
 
 def classify_stability(multipliers) -> str:
@@ -306,8 +332,12 @@ class CollocationSystem:
 
 
 @dataclass
-class _Setup:
-    """Per-parameter-set constants: model, state scales, natural frequency, rest displacement."""
+class ModelSetup:
+    """Per-parameter-set constants: model, state scales, natural frequency, rest displacement.
+
+    Obtain it with :func:`model_setup` (memoised); ``system(m)`` caches the collocation
+    system of m points.
+    """
 
     params: MembraneParameters
     model: DEAModel
@@ -342,7 +372,7 @@ class _Setup:
 
 
 @functools.lru_cache(maxsize=32)
-def _setup(params: MembraneParameters) -> _Setup:
+def model_setup(params: MembraneParameters) -> ModelSetup:
     """Model constants and scales for a parameter set (memoised: parameters are immutable)."""
     model = DEAModel.from_parameters(params)
     eq = static_equilibrium(params, 0.0)
@@ -351,7 +381,7 @@ def _setup(params: MembraneParameters) -> _Setup:
     omega_n = math.sqrt(max(float(eq.stiffness_N_per_m), 1e-12) / params.mass_kg)
     eps_ref = max(d_ref**2 / params.electrode_width_m**2, 1e-8)
     scale = np.array([d_ref, eps_ref, d_ref * omega_n])
-    return _Setup(params, model, scale, omega_n, d_rest)
+    return ModelSetup(params, model, scale, omega_n, d_rest)
 
 
 def response_layout(periodic_input: PeriodicInput, n_harmonics: int, use_symmetry: bool):
@@ -362,7 +392,7 @@ def response_layout(periodic_input: PeriodicInput, n_harmonics: int, use_symmetr
     return divisor, 2 * int(n_harmonics) + 1
 
 
-def linear_guess(params, periodic_input, divisor, m, setup: _Setup) -> np.ndarray:
+def linear_guess(params, periodic_input, divisor, m, setup: ModelSetup) -> np.ndarray:
     """Periodic response of the model linearised about the static equilibrium at the mean of u^2."""
     model = setup.model
     phases = 2.0 * np.pi * np.arange(m) / m
@@ -418,13 +448,13 @@ def solve_native(
             if sol.truncation_ratio < auto_tol:
                 break
         if stability:
-            setup = _setup(params)
-            sol.multipliers = floquet_multipliers(setup.model, sol, scale=setup.scale)
+            setup = model_setup(params)
+            attach_floquet(setup.model, sol, scale=setup.scale)
         sol.iterations = iters
         sol.wall_time_s = time.perf_counter() - t_auto
         return sol
     t0 = time.perf_counter()
-    setup = _setup(params)
+    setup = model_setup(params)
     divisor, m = response_layout(periodic_input, n_harmonics, use_symmetry)
     system = setup.system(m)
     omega = periodic_input.omega * divisor
@@ -461,25 +491,16 @@ def solve_native(
         except HarmonicBalanceError as exc:
             z = None
             err = f"{err}; amplitude homotopy: {exc}"
-    if z is None:  # frequency continuation from a quarter of f (the branch of an upward sweep)
-        from .continuation import ContinuationError, frequency_sweep
-
+    if z is None:  # natural continuation in frequency from a quarter of f (an upward sweep)
         f = periodic_input.frequency_Hz
         try:
-            sweep = frequency_sweep(params, periodic_input, np.linspace(0.25 * f, f, 9),
-                                    n_harmonics=n_harmonics, use_symmetry=use_symmetry,
-                                    stability=False, tol=tol)
-        except (ContinuationError, HarmonicBalanceError) as exc:
+            z, it, res = _continue_up_in_frequency(setup, system, periodic_input, divisor, m, f, tol, max_iter)
+            total_it += it
+        except HarmonicBalanceError as exc:
             raise HarmonicBalanceError(
                 f"harmonic balance failed at f = {f:g} Hz with N = {n_harmonics}: {err}; "
                 f"frequency continuation: {exc}"
             ) from None
-        at_f = [pt for pt in sweep.points if abs(pt.frequency_Hz - f) <= 1e-9 * f]
-        if not at_f:
-            raise HarmonicBalanceError(f"harmonic balance failed at f = {f:g} Hz: {err}")
-        z = system.to_z(at_f[0].solution.state)
-        total_it += sweep.branch_steps
-        res = float(np.max(np.abs(system.residual(z, omega, u2))))
     x = system.unscale(z)
     sol = PeriodicSolution(
         frequency_Hz=periodic_input.frequency_Hz,
@@ -493,9 +514,36 @@ def solve_native(
         wall_time_s=0.0,
     )
     if stability:
-        sol.multipliers = floquet_multipliers(setup.model, sol, scale=setup.scale)
+        attach_floquet(setup.model, sol, scale=setup.scale)
     sol.wall_time_s = time.perf_counter() - t0
     return sol
+
+
+def _continue_up_in_frequency(setup, system, periodic_input, divisor, m, f, tol, max_iter):
+    """Natural continuation from f/4 (linearised guess there) up to f; the step halves on failure.
+
+    Returns (z, iterations, scaled residual) at f. Raises HarmonicBalanceError.
+    """
+    phases = 2.0 * np.pi * np.arange(m) / m
+    u2 = periodic_input.at_phase(phases / divisor) ** 2
+    f_cur = 0.25 * f
+    start = periodic_input.with_frequency(f_cur)
+    z = system.to_z(linear_guess(setup.params, start, divisor, m, setup))
+    z, iters, res = system.newton(z, 2.0 * np.pi * f_cur * divisor, u2, tol=tol, max_iter=max_iter)
+    step = 0.1 * f
+    while f_cur < f:
+        f_next = min(f, f_cur + step)
+        try:
+            z_new, it, res = system.newton(z, 2.0 * np.pi * f_next * divisor, u2, tol=tol, max_iter=max_iter)
+        except HarmonicBalanceError:
+            step *= 0.5
+            if step < 1e-4 * f:
+                raise HarmonicBalanceError(f"no solution continued past {f_cur:.6g} Hz (a fold?)") from None
+            continue
+        iters += it
+        z, f_cur = z_new, f_next
+        step = min(1.5 * step, 0.1 * f)
+    return z, iters, res
 
 
 def resample_state(x: np.ndarray, m: int) -> np.ndarray:
@@ -514,6 +562,25 @@ def _expm_small(mats: np.ndarray, order: int = 14) -> np.ndarray:
     out = eye + mats / order
     for k in range(order - 1, 0, -1):
         out = eye + (mats @ out) / k
+    return out
+
+
+def _mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Products of 3x3 matrices stored component-wise, shape (3, 3, ...)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+def _expm3(mats: np.ndarray, order: int = 12) -> np.ndarray:
+    """exp of component-wise 3x3 matrices (3, 3, ...) with norm <= ~1 (Taylor, Horner form)."""
+    eye = np.zeros_like(mats)
+    eye[0, 0] = eye[1, 1] = eye[2, 2] = 1.0
+    out = eye + mats / order
+    for k in range(order - 1, 0, -1):
+        out = eye + _mm3(mats, out) / k
     return out
 
 
@@ -568,10 +635,105 @@ def floquet_multipliers(model: DEAModel, sol: PeriodicSolution, steps: int | Non
     return mu[np.argsort(-np.abs(mu))]
 
 
-__all__ += ["resample_state", "monodromy_matrix", "linear_guess", "response_layout"]
+def half_period_view(sol: PeriodicSolution) -> PeriodicSolution:
+    """A full-period solution that is T/2-periodic, seen over T/2 (divisor 2, even harmonics kept)."""
+    n_half = max(1, (sol.n_points - 1) // 4)
+    m_half = 2 * n_half + 1
+    phases = np.pi * np.arange(m_half) / m_half   # phi / 2 for phi on the half-period grid
+    state = sol.state @ periodic_interpolation_matrix(sol.n_points, phases).T
+    return PeriodicSolution(
+        frequency_Hz=sol.frequency_Hz, periodic_input=sol.periodic_input, state=state,
+        period_divisor=2 * sol.period_divisor, n_harmonics=n_half, method=sol.method,
+        iterations=sol.iterations, residual=sol.residual, wall_time_s=0.0,
+    )
 
 
-def _linear_guess_batch(setup: _Setup, u2: np.ndarray, omega: np.ndarray, m: int) -> np.ndarray:
+#: A full-period solution whose odd harmonics are below this fraction is the symmetric (T/2) orbit.
+SYMMETRY_TOL = 1e-5
+
+
+def attach_floquet(model: DEAModel, sol: PeriodicSolution, scale: np.ndarray | None = None) -> PeriodicSolution:
+    """Set ``sol.multipliers`` (over its response period) and, for a full-period solution that is
+    the symmetric T/2 orbit of a T/2-periodic u^2, ``sol.half_period_multipliers`` (over T/2).
+
+    Over T a multiplier mu of the half-period map appears squared: the period-doubling
+    multiplier -1.05 becomes +1.10 and would read as a saddle; judged over T/2 it is named
+    for what it is (``unstable (period-doubling)``).
+    """
+    sol.multipliers = floquet_multipliers(model, sol, scale=scale)
+    sol.half_period_multipliers = None
+    if (sol.period_divisor == 1 and sol.n_points >= 5 and sol.periodic_input.u2_half_periodic()
+            and sol.odd_harmonic_ratio() < SYMMETRY_TOL):
+        sol.half_period_multipliers = floquet_multipliers(model, half_period_view(sol), scale=scale)
+    return sol
+
+
+def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, periodic_input: PeriodicInput,
+                              divisor: int, scale: np.ndarray | None = None, h_rho: float = 1.0,
+                              min_steps: int = 16) -> np.ndarray:
+    """Floquet multipliers of many solutions of one waveform at once: (B, 3), decreasing modulus.
+
+    ``states`` (B, 3, M) are collocation values over the response periods ``response_periods_s``
+    (B,) of ``periodic_input`` seen with ``divisor``. Same 4th-order Magnus scheme as
+    :func:`monodromy_matrix`, coarser by default (h rho(A) <= 1, at least 16 steps, rounded up
+    to a power of 2 so solutions share the quadrature points and are processed in stacks):
+    multipliers to ~1e-5, enough to detect where stability changes (the continuation then
+    locates those points with :func:`floquet_multipliers`).
+    """
+    x_all = np.asarray(states, float)
+    periods = np.asarray(response_periods_s, float).reshape(-1)
+    nb, _, m = x_all.shape
+    if scale is None:
+        scale = np.ones(3)
+    out = np.empty((nb, 3), dtype=complex)
+    if nb == 0:
+        return out
+    node_phase = 2.0 * np.pi * np.arange(m) / m
+    u2_nodes = periodic_input.at_phase(node_phase / divisor) ** 2
+    rows = model.jacobian_u2(x_all[:, 0], x_all[:, 1], x_all[:, 2], u2_nodes[None, :])
+    a_nodes = np.empty((nb, m, 3, 3))
+    for i in range(3):
+        for j in range(3):
+            a_nodes[:, :, i, j] = rows[i][j] * (scale[j] / scale[i])
+    rate = np.max(np.abs(np.linalg.eigvals(a_nodes[:, ::3])), axis=(1, 2))  # rho(A) along the orbit
+    need = np.clip(np.ceil(rate * periods / h_rho), min_steps, 8192)
+    steps_of = (2 ** np.ceil(np.log2(need))).astype(int)
+    for steps in np.unique(steps_of):
+        idx = np.nonzero(steps_of == steps)[0]
+        frac = np.arange(steps) / steps
+        phase = 2.0 * np.pi * np.concatenate([frac + _GAUSS[0] / steps, frac + _GAUSS[1] / steps])
+        pmat = periodic_interpolation_matrix(m, phase)                     # (2S, M)
+        x = x_all[idx] @ pmat.T                                            # (b, 3, 2S)
+        u2 = periodic_input.at_phase(phase / divisor) ** 2
+        jr = model.jacobian_u2(x[:, 0], x[:, 1], x[:, 2], u2[None, :])
+        h = (periods[idx] / steps)[:, None]
+        # component layout (3, 3, b, S): element-wise 3x3 products are ~15x faster than stacked matmul
+        a1 = np.empty((3, 3, idx.size, steps))
+        a2 = np.empty((3, 3, idx.size, steps))
+        for i in range(3):
+            for j in range(3):
+                aij = np.broadcast_to(jr[i][j], (idx.size, 2 * steps)) * (h * (scale[j] / scale[i]))
+                a1[i, j] = aij[:, :steps]
+                a2[i, j] = aij[:, steps:]
+        omega_mag = 0.5 * (a1 + a2) + (math.sqrt(3.0) / 12.0) * (_mm3(a2, a1) - _mm3(a1, a2))
+        mats = _expm3(omega_mag)
+        while mats.shape[3] > 1:  # ordered product: later steps multiply from the left
+            if mats.shape[3] % 2:
+                pad = np.zeros((3, 3, mats.shape[2], 1))
+                pad[0, 0] = pad[1, 1] = pad[2, 2] = 1.0
+                mats = np.concatenate([mats, pad], axis=3)
+            mats = _mm3(mats[:, :, :, 1::2], mats[:, :, :, 0::2])
+        mu = np.linalg.eigvals(np.transpose(mats[:, :, :, 0], (2, 0, 1)))
+        order = np.argsort(-np.abs(mu), axis=1)
+        out[idx] = np.take_along_axis(mu, order, axis=1)
+    return out
+
+
+__all__ += ["resample_state", "monodromy_matrix", "linear_guess", "response_layout", "half_period_view",
+            "SYMMETRY_TOL"]
+
+
+def _linear_guess_batch(setup: ModelSetup, u2: np.ndarray, omega: np.ndarray, m: int) -> np.ndarray:
     """Vectorised :func:`linear_guess` for a batch (B, M) of u^2 waveforms at angular frequencies omega."""
     model = setup.model
     u2_mean = np.mean(u2, axis=1)
@@ -616,7 +778,7 @@ def solve_native_batch(
     inputs = list(periodic_inputs)
     if not inputs:
         return []
-    setup = _setup(params)
+    setup = model_setup(params)
     layouts = {response_layout(inp, n_harmonics, use_symmetry) for inp in inputs}
     if len(layouts) != 1:
         raise ValueError("periodic_inputs: mix of symmetric and non-symmetric inputs; batch them separately")
@@ -710,7 +872,7 @@ def solve_native_batch(
                 residual=float(residual[k]), wall_time_s=0.0,
             )
         if stability:
-            sol.multipliers = floquet_multipliers(setup.model, sol, scale=setup.scale)
+            attach_floquet(setup.model, sol, scale=setup.scale)
         results.append(sol)
     wall = time.perf_counter() - t0
     for sol in results:

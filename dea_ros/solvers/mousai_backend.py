@@ -19,8 +19,8 @@ from ..model.parameters import MembraneParameters
 from .harmonic_balance import (
     HarmonicBalanceError,
     PeriodicSolution,
-    _setup,
-    floquet_multipliers,
+    attach_floquet,
+    model_setup,
     linear_guess,
     resample_state,
 )
@@ -63,7 +63,7 @@ def solve_mousai(
     if n_harmonics < 1:
         raise ValueError(f"n_harmonics: must be >= 1, got {n_harmonics}")
     t0 = time.perf_counter()
-    setup = _setup(params)
+    setup = model_setup(params)
     model, scale = setup.model, setup.scale
     m = 2 * n_harmonics + 1
     omega = periodic_input.omega
@@ -107,6 +107,6 @@ def solve_mousai(
         extra={"rhs_calls": counter["calls"]},
     )
     if stability:
-        sol.multipliers = floquet_multipliers(model, sol, scale=scale)
+        attach_floquet(model, sol, scale=scale)
     sol.wall_time_s = time.perf_counter() - t0
     return sol

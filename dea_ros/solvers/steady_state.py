@@ -27,10 +27,17 @@ from scipy.integrate import solve_ivp
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from .harmonic_balance import PeriodicSolution, _setup, floquet_multipliers
+from .harmonic_balance import (
+    SYMMETRY_TOL,
+    PeriodicSolution,
+    attach_floquet,
+    floquet_multipliers,
+    half_period_view,
+    model_setup,
+)
 from .inputs import PeriodicInput
 
-__all__ = ["solve_periodic", "integrate_to_steady_state", "SteadyStateError", "METHODS"]
+__all__ = ["solve_periodic", "integrate_to_steady_state", "shoot_periodic_orbit", "SteadyStateError", "METHODS"]
 
 METHODS = ("native", "mousai", "integration")
 
@@ -60,7 +67,7 @@ def integrate_to_steady_state(
     if samples_per_period % 2 == 0:
         samples_per_period += 1
     t_start = time.perf_counter()
-    setup = _setup(params)
+    setup = model_setup(params)
     model, scale = setup.model, setup.scale
     period = 1.0 / periodic_input.frequency_Hz
     omega = periodic_input.omega
@@ -128,7 +135,80 @@ def integrate_to_steady_state(
         extra={"simulated_time_s": t_last + period, "rhs_calls": nfev},
     )
     if stability:
-        out.multipliers = floquet_multipliers(model, out, scale=scale)
+        attach_floquet(model, out, scale=scale)
+    out.wall_time_s = time.perf_counter() - t_start
+    return out
+
+
+def shoot_periodic_orbit(
+    params: MembraneParameters,
+    periodic_input: PeriodicInput,
+    x0,
+    rtol: float = 1e-10,
+    tol: float = 1e-10,
+    max_iter: int = 10,
+    samples_per_period: int = 513,
+) -> PeriodicSolution:
+    """The periodic orbit of period T (the excitation period) through a guess ``x0`` at phase 0,
+    by single shooting on the adaptive integrator (DOP853): Newton on P(x) = x, P the one-period
+    flow map, with the monodromy matrix from the variational equations (analytic df/dx)
+    integrated alongside; converged when the scaled mismatch |P(x) - x| is below ``tol``.
+
+    Independent of harmonic balance (only the start may come from it): the reference the
+    harmonic-balance branches are tested against, also where the orbit is unstable. The result
+    samples the orbit at ``samples_per_period`` phases; ``multipliers`` are the eigenvalues of the
+    monodromy over T (and, for a T/2-periodic orbit of a T/2-periodic u^2, ``half_period_multipliers``
+    judge its stability, see :func:`~dea_ros.solvers.harmonic_balance.attach_floquet`).
+    Raises :class:`SteadyStateError` when Newton does not converge.
+    """
+    t_start = time.perf_counter()
+    setup = model_setup(params)
+    model, scale = setup.model, setup.scale
+    period = 1.0 / periodic_input.frequency_Hz
+    omega = periodic_input.omega
+    atol = np.r_[1e-12 * scale, np.full(9, 1e-12)]
+
+    def u2_at(t):
+        u = periodic_input.at_phase(omega * t)
+        return u * u
+
+    def fun(t, y):
+        u2 = u2_at(t)
+        f, a = model.rhs_and_jacobian_u2(y[0], y[1], y[2], u2)
+        mono = y[3:].reshape(3, 3)
+        amat = np.array([[float(np.asarray(a[i][j])) for j in range(3)] for i in range(3)])
+        return np.r_[np.asarray(f, float), (amat @ mono).reshape(-1)]
+
+    x = np.asarray(x0, float).reshape(3).copy()
+    mismatch = np.full(3, np.inf)
+    for it in range(1, max_iter + 1):
+        sol = solve_ivp(fun, (0.0, period), np.r_[x, np.eye(3).reshape(-1)], method="DOP853",
+                        rtol=rtol, atol=atol)
+        if not sol.success:
+            raise SteadyStateError(f"shooting integration failed at {periodic_input.frequency_Hz:g} Hz: "
+                                   f"{sol.message}")
+        mono = sol.y[3:, -1].reshape(3, 3)
+        mismatch = sol.y[:3, -1] - x
+        if np.max(np.abs(mismatch / scale)) < tol:
+            break
+        x = x - np.linalg.solve(mono - np.eye(3), mismatch)
+    else:
+        raise SteadyStateError(f"shooting did not converge at {periodic_input.frequency_Hz:g} Hz "
+                               f"(mismatch {np.max(np.abs(mismatch / scale)):.3g} scaled)")
+    if samples_per_period % 2 == 0:
+        samples_per_period += 1
+    times = period * np.arange(samples_per_period) / samples_per_period
+    dense = solve_ivp(lambda t, y: np.asarray(model.rhs_u2(y[0], y[1], y[2], u2_at(t)), float),
+                      (0.0, period), x, method="DOP853", rtol=rtol, atol=1e-12 * scale, t_eval=times)
+    out = PeriodicSolution(
+        frequency_Hz=periodic_input.frequency_Hz, periodic_input=periodic_input, state=dense.y,
+        period_divisor=1, n_harmonics=(samples_per_period - 1) // 2, method="shooting", iterations=it,
+        residual=float(np.max(np.abs(mismatch / scale))), wall_time_s=0.0,
+    )
+    out.multipliers = np.linalg.eigvals(mono)
+    out.multipliers = out.multipliers[np.argsort(-np.abs(out.multipliers))]
+    if periodic_input.u2_half_periodic() and out.odd_harmonic_ratio() < SYMMETRY_TOL * 10:
+        out.half_period_multipliers = floquet_multipliers(model, half_period_view(out), scale=scale)
     out.wall_time_s = time.perf_counter() - t_start
     return out
 

@@ -67,6 +67,8 @@ __all__ = [
     "rhs_stress_derivative",
     "stress_direction_basis",
     "rest_state_derivative",
+    "rhs_permittivity_derivative",
+    "rest_state_permittivity_derivative",
 ]
 
 #: Parameters whose (logarithmic) sensitivities are computed, in this order.
@@ -151,6 +153,34 @@ def rhs_stress_derivative(model: DEAModel, x, directions) -> np.ndarray:
     out = np.zeros((h.shape[0], 3) + d.shape)
     out[:, 2] = -model.force_gain * (d / s) * h
     return out
+
+
+def rhs_permittivity_derivative(model: DEAModel, x, u2) -> np.ndarray:
+    """d f / d eps_r at states x (3, ...) under u^2 (broadcastable): shape (1, 3, ...).
+
+    Only the Maxwell stress c2 s u^2 depends on it (eq. 6, c2 proportional to eps_r)."""
+    d = np.asarray(x[0], float)
+    eps_r = model.params.relative_permittivity
+    out = np.zeros((1, 3) + np.broadcast_shapes(d.shape, np.shape(u2)))
+    out[0, 2] = -model.force_gain * d * np.asarray(u2, float) * (model.c2 / eps_r)
+    return out
+
+
+def rest_state_permittivity_derivative(params: MembraneParameters, voltage_V: float,
+                                       displacement_m: float | None = None) -> np.ndarray:
+    """d(rest state [d, eps1, d'])/d eps_r by implicit differentiation of eq. 20. Shape (1, 3)."""
+    if displacement_m is None:
+        displacement_m = float(static_equilibrium(params, float(voltage_V)).displacement_m)
+    d = float(displacement_m)
+    u2 = float(voltage_V) ** 2
+    if d <= 0.0 or u2 == 0.0:
+        return np.zeros((1, 3))
+    model = DEAModel.from_parameters(params)
+    s = 1.0 + d * d / model.l0_sq
+    dforce = params.c1bar_m * d * u2 * (model.c2 / params.relative_permittivity)
+    dd = -dforce / float(model.static_stiffness_N_per_m(d, u2))
+    phi = d / (model.l0_sq * np.sqrt(s))
+    return np.array([[dd, phi * dd, 0.0]])
 
 
 def rest_state_derivative(params: MembraneParameters, voltage_V: float, directions,
@@ -318,18 +348,20 @@ class TransientCollocation:
         return res, ab, (xm, am)
 
     def _parameter_derivative(self, model: DEAModel, nodes, mid, scale, directions=None,
-                              dx0=None) -> np.ndarray:
-        """dR/d(ln k1, ln eta1, ln eta2[, stress directions]), shape (n_unknowns, 3 + q), scaled."""
+                              dx0=None, permittivity: bool = False) -> np.ndarray:
+        """dR/d(ln k1, ln eta1, ln eta2[, stress directions][, eps_r]), shape (n_unknowns, 3 + q), scaled."""
         xm, am = mid
         h = self.h
 
-        def g(x):
+        def g(x, u2):
             out = rhs_log_parameter_derivative(model, x)
             if directions is not None:
                 out = np.concatenate([out, rhs_stress_derivative(model, x, directions)], axis=0)
+            if permittivity:
+                out = np.concatenate([out, rhs_permittivity_derivative(model, x, u2)], axis=0)
             return out
 
-        gl, gm, gr = g(nodes[:, :-1]), g(xm), g(nodes[:, 1:])
+        gl, gm, gr = g(nodes[:, :-1], self.u2_left), g(xm, self.u2_mid), g(nodes[:, 1:], self.u2_right)
         n_par = gl.shape[0]
         # total derivative of f(x_m) through the explicit midpoint: g_m + A_m dx_m/dtheta
         dxm = (h / 8.0) * (gl - gr)                               # (P, 3, N)
@@ -350,13 +382,15 @@ class TransientCollocation:
         sensitivities: bool = False,
         warm_start: bool = True,
         stress_directions=None,
+        permittivity: bool = False,
     ) -> TransientSolution:
         """Trajectory for ``params`` from ``x0`` (default: static equilibrium at u(t_0)).
 
         ``nodes_guess`` (3, N+1) overrides the warm start (the previous
         solution of this object). ``stress_directions`` (q, 6): with
         ``sensitivities``, also d state / d c_j for (beta, gamma) moving along
-        c_j * direction_j (the initial rest state moves too, when x0 is None).
+        c_j * direction_j (the initial rest state moves too, when x0 is None);
+        ``permittivity``: then also d state / d eps_r (last).
         Raises :class:`TransientError` when Newton fails from the warm start
         *and* from the quasi-static guess.
         """
@@ -402,10 +436,16 @@ class TransientCollocation:
             if info != 0:
                 raise TransientError(f"singular collocation Jacobian (LAPACK info {info})")
             dx0 = None
-            if stress_directions is not None and rest:
-                dx0 = rest_state_derivative(params, float(self.voltage_V[0]), stress_directions,
-                                            displacement_m=float(x0[0]))
-            rhs = self._parameter_derivative(model, nodes, mid, scale, stress_directions, dx0)
+            if (stress_directions is not None or permittivity) and rest:
+                parts = []
+                if stress_directions is not None:
+                    parts.append(rest_state_derivative(params, float(self.voltage_V[0]), stress_directions,
+                                                       displacement_m=float(x0[0])))
+                if permittivity:
+                    parts.append(rest_state_permittivity_derivative(params, float(self.voltage_V[0]),
+                                                                    displacement_m=float(x0[0])))
+                dx0 = np.concatenate(parts, axis=0)
+            rhs = self._parameter_derivative(model, nodes, mid, scale, stress_directions, dx0, permittivity)
             dz, info = dgbtrs(lu, _KL, _KU, -rhs, piv)
             if info != 0:
                 raise TransientError(f"band back-substitution failed (LAPACK info {info})")

@@ -1,0 +1,363 @@
+"""Joint refinement: every identifiable parameter at once, with statistical weights.
+
+The paper's procedure fits in two stages (static parameters from the rest positions, then k1,
+eta1, eta2 with them frozen, eqs. 19-24). Freezing the first stage hides its uncertainty from
+the second, and the paper's weights make eq. 22 a step fit: the intervals of the second stage
+do not cover the truth. The joint refinement starts from the two-stage result and minimises one
+chi-square over all the data,
+
+    chi^2 = sum_static ((d_model - d)/s_static)^2 + sum_steps ((d_model(t_j) - d_j)/sigma)^2
+            + sum_sines ((d_rms,model - d_rms)/sigma_rms)^2,
+
+over theta = (sigma_h(1), sigma_h'(1)[, sigma_h''(1)], eps_r, ln k1, ln eta1, ln eta2), with
+s_static the residual standard deviation of the static fit, sigma the laser noise (the
+manifest's ``sensor_noise_m`` or the estimate from each record) and sigma_rms the stated
+uncertainty of each RMS value (``d_rms_std_m``; otherwise estimated from the residuals). The
+stress combinations are those of eq. 10 with derivatives in s = lambda^2 (the static fit's
+coordinates), written as Ogden beta/gamma by the static fit's representation (closest to the
+base parameters, or the minimum-norm mu_i of eqs. 8-9).
+
+Every residual has an exact Jacobian: the static points by implicit differentiation of eq. 20,
+the steps by the collocation sensitivities (ln k1, ln eta1, ln eta2, the (beta, gamma) direction
+of each stress combination, eps_r), the RMS values by the implicit function theorem on the
+harmonic-balance equations of the solution each record is fitted with (T/2 periodic or
+period-doubled; quasi-periodic records are left out by the caller). The 95 % intervals come from
+the linearised covariance of the chi-square (t quantile, s^2 = chi^2 / dof).
+
+sigma_h''(1) (the curvature of the hyperelastic stress) is invisible to the static data and is
+fitted only from the large oscillations near resonance; so is the next term, sigma_h'''(1): at
+1.5 mm RMS (s - 1 up to 0.03) and 0.03 um uncertainty of an RMS value a wrong third derivative
+alone moves the response near the peak by 40 standard deviations, so it is fitted with the
+curvature (a nuisance parameter: the intervals of the others allow for it). sigma_h''(1) is
+reported as identified when its 95 % interval is within +-``curvature_rel_ci_limit`` (50 %) of
+its value; otherwise the result says so (``curvature_identified`` False) and the caller decides
+(the pipeline writes it flagged "poorly determined" while its sign is known, else the base value). The four combinations are matched exactly by the (beta, gamma) closest to the
+base parameters' (or, without them, to the start's), as in the static fit's representation.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..model.equilibrium import NoEquilibriumError, static_equilibrium
+from ..model.parameters import MembraneParameters
+from ..solvers.harmonic_balance import HarmonicBalanceError
+from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
+from .dynamic_fit import PARAMETER_BOUNDS, FrequencyPoint, periodic_rms_gradient, point_solution
+from .experiments import ExperimentError, StaticData, StepData, estimate_noise_m
+from .metrics import ParameterStatistics, parameter_statistics
+from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
+
+__all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError", "CURVATURE_REL_CI_LIMIT",
+           "JOINT_NAMES"]
+
+#: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
+CURVATURE_REL_CI_LIMIT = 0.5
+#: Names of the joint parameters (the curvature terms sigma_h''(1), sigma_h'''(1) only when fitted).
+JOINT_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa", "eps_r", "k1_Pa",
+               "eta1_Pa_s", "eta2_Pa_s")
+_UNITS = (1e5, 1e5, 1e6, 1e7)   # optimizer units of the stress combinations (Pa)
+_STRESS_BOUND = (np.inf, np.inf, 5e8, 5e9)   # |sigma_h''(1)|, |sigma_h'''(1)| bounds of the search (Pa)
+
+
+class JointFitError(ExperimentError):
+    """The joint refinement cannot run on these data."""
+
+
+@dataclass
+class JointFitResult:
+    """Outcome of :func:`fit_joint`."""
+
+    parameters: MembraneParameters
+    statistics: ParameterStatistics
+    names: tuple
+    curvature_fitted: bool
+    curvature_identified: bool
+    curvature_fallback_Pa: float       # the base value written when sigma_h''(1) is not identified
+    cost: float                        # chi-square at the optimum
+    dof: int
+    block_chi2: dict                   # chi-square per data kind
+    sigmas: dict                       # the standard deviations used as weights
+    frequency_points: list
+    simulated_rms_m: np.ndarray
+    n_evaluations: int
+    wall_time_s: float
+    warnings: list = field(default_factory=list)
+    message: str = ""
+
+    @property
+    def fit_frequencies_Hz(self) -> np.ndarray:
+        return np.array([p.frequency_Hz for p in self.frequency_points])
+
+    def value(self, name: str) -> float:
+        return float(self.statistics.values[self.statistics.names.index(name)])
+
+    def as_dict(self) -> dict:
+        return {"names": list(self.names), "curvature_fitted": self.curvature_fitted,
+                "curvature_identified": self.curvature_identified,
+                "curvature_fallback_Pa": self.curvature_fallback_Pa, "chi2": self.cost, "dof": self.dof,
+                "chi2_per_dof": self.cost / max(self.dof, 1), "block_chi2": dict(self.block_chi2),
+                "sigmas": self.sigmas, "fit_frequencies_Hz": [float(f) for f in self.fit_frequencies_Hz],
+                "fit_kinds": [p.kind for p in self.frequency_points],
+                "evaluations": self.n_evaluations, "wall_time_s": self.wall_time_s,
+                "statistics": self.statistics.as_dict(), "message": self.message}
+
+
+class JointObjective:
+    """Weighted residuals of all data and their Jacobian w.r.t. the joint parameters (module docstring)."""
+
+    def __init__(self, start: MembraneParameters, static: StaticData | None, steps: Sequence[StepData],
+                 points: Sequence[FrequencyPoint], static_sigma_m: float, step_sigmas_m, point_sigmas_m,
+                 prior_beta_gamma=None, fit_curvature: bool = True, n_harmonics: int = 8):
+        self.start = start
+        self.static = static
+        self.steps = list(steps)
+        self.points = list(points)
+        self.static_sigma = float(static_sigma_m)
+        self.step_sigmas = np.asarray(step_sigmas_m, float)
+        self.point_sigmas = np.asarray(point_sigmas_m, float)
+        self.n_harmonics = int(n_harmonics)
+        start_bg = np.r_[start.beta_Pa, start.gamma_Pa]
+        prior = start_bg if prior_beta_gamma is None else np.asarray(prior_beta_gamma, float)
+        # four combinations matched exactly, the two remaining Ogden directions held closest to the
+        # base parameters (or to the start's representation without base parameters)
+        self.rep = OgdenRepresentation(start.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
+        self.fit_curvature = fit_curvature
+        self.combos0 = EXTENDED_COMBINATION_MATRIX @ start_bg
+        if fit_curvature == "third":       # sigma_h''(1) held at the start's value, sigma_h'''(1) free
+            self.stress_index = [0, 1, 3]
+        else:
+            self.stress_index = [0, 1, 2, 3] if fit_curvature else [0, 1]
+        self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
+        gain = self.rep.gain                                         # (6, 4)
+        self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
+        self.solvers = [TransientCollocation(s.time_s, s.voltage_V, hold=s.voltage_hold) for s in self.steps]
+        self._guesses: dict = {}
+        self._cache: dict = {}
+        self.n_evaluations = 0
+
+    # ------------------------------------------------------------------ parameters
+    def theta0(self) -> np.ndarray:
+        p = self.start
+        stress = [self.combos0[i] / _UNITS[i] for i in self.stress_index]
+        return np.r_[stress, p.relative_permittivity, np.log([p.k1_Pa, p.eta1_Pa_s, p.eta2_Pa_s])]
+
+    def parameters(self, theta) -> MembraneParameters:
+        theta = np.asarray(theta, float)
+        q = len(self.stress_index)
+        combos = self.combos0.copy()
+        for j, i in enumerate(self.stress_index):
+            combos[i] = theta[j] * _UNITS[i]
+        bg = self.rep.beta_gamma(combos)
+        k1, eta1, eta2 = np.exp(theta[q + 1:q + 4])
+        return self.start.replace(beta_Pa=tuple(float(v) for v in bg[:3]), gamma_Pa=tuple(float(v) for v in bg[3:]),
+                                  relative_permittivity=float(theta[q]), k1_Pa=float(k1), eta1_Pa_s=float(eta1),
+                                  eta2_Pa_s=float(eta2))
+
+    def bounds(self):
+        q = len(self.stress_index)
+        b = np.array([_STRESS_BOUND[i] / _UNITS[i] for i in self.stress_index])
+        lo = np.r_[-b, 1.0, np.log([b_[0] for b_ in PARAMETER_BOUNDS.values()])]
+        hi = np.r_[b, 50.0, np.log([b_[1] for b_ in PARAMETER_BOUNDS.values()])]
+        lo[0] = 1e-3  # sigma_h(1) > 0: a pre-tensioned membrane
+        return lo, hi
+
+    # ------------------------------------------------------------------ residuals
+    def evaluate(self, theta):
+        """(residuals, Jacobian (n, P), details); cached per theta."""
+        theta = np.asarray(theta, float)
+        key = theta.tobytes()
+        if key in self._cache:
+            return self._cache[key]
+        self.n_evaluations += 1
+        p = self.parameters(theta)
+        q = len(self.stress_index)
+        n_par = q + 4
+        units = np.r_[[_UNITS[i] for i in self.stress_index], 1.0, 1.0, 1.0, 1.0]
+        res, rows = [], []
+        details = {"blocks": {}}
+        # -- static points (eq. 20)
+        if self.static is not None:
+            d = np.zeros(self.static.n_points)
+            for m in np.unique(self.static.mass_kg):
+                sel = self.static.mass_kg == m
+                d[sel] = static_equilibrium(p, self.static.voltage_V[sel], mass_kg=float(m)).displacement_m
+            jac7 = static_displacement_jacobian(p, self.static, d)                 # (n, 7)
+            block = np.zeros((d.size, n_par))
+            block[:, :q] = jac7[:, :6] @ self.directions.T
+            block[:, q] = jac7[:, 6]
+            r = (d - self.static.displacement_m) / self.static_sigma
+            res.append(r)
+            rows.append(block / self.static_sigma)
+            details["static_predicted_m"] = d
+            details["blocks"]["static"] = float(r @ r)
+        # -- steps (eq. 23)
+        sims = []
+        chi_steps = 0.0
+        for step, solver, sigma in zip(self.steps, self.solvers, self.step_sigmas):
+            ps = p if step.mass_kg == p.mass_kg else p.replace(mass_kg=step.mass_kg)
+            sol = solver.solve(ps, sensitivities=True, stress_directions=self.directions, permittivity=True)
+            sens = sol.displacement_sensitivity_m                          # (3 + q + 1, K)
+            block = np.zeros((step.n_samples, n_par))
+            block[:, :q] = sens[3:3 + q].T
+            block[:, q] = sens[3 + q]
+            block[:, q + 1:] = sens[:3].T
+            r = (sol.displacement_m - step.displacement_m) / sigma
+            res.append(r)
+            rows.append(block / sigma)
+            sims.append(sol.displacement_m)
+            chi_steps += float(r @ r)
+        details["step_simulated_m"] = sims
+        if self.steps:
+            details["blocks"]["steps"] = chi_steps
+        # -- RMS values (eqs. 21, 24)
+        sim = np.zeros(len(self.points))
+        if self.points:
+            block = np.zeros((len(self.points), n_par))
+            for k, pt in enumerate(self.points):
+                pp = p if pt.mass_kg == p.mass_kg else p.replace(mass_kg=pt.mass_kg)
+                d0 = float(static_equilibrium(pp, 0.0).displacement_m)
+                dd0 = rest_state_derivative(pp, 0.0, self.directions, d0)[:, 0]
+                sol = point_solution(pp, pt, self.n_harmonics, self._guesses.get(k))
+                self._guesses[k] = sol.state
+                rms, grad = periodic_rms_gradient(pp, sol, d0, np.r_[dd0, 0.0], self.directions, permittivity=True)
+                sim[k] = rms
+                block[k, :q] = grad[3:3 + q]
+                block[k, q] = grad[3 + q]
+                block[k, q + 1:] = grad[:3]
+            r = (sim - np.array([pt.measured_rms_m for pt in self.points])) / self.point_sigmas
+            res.append(r)
+            rows.append(block / self.point_sigmas[:, None])
+            details["blocks"]["frequency"] = float(r @ r)
+        details["simulated_rms_m"] = sim
+        out_res = np.concatenate(res)
+        out_jac = np.vstack(rows) * units[None, :]
+        out = (out_res, out_jac, details)
+        if len(self._cache) > 16:
+            self._cache.clear()
+        self._cache[key] = out
+        return out
+
+    def residuals(self, theta):
+        return self.evaluate(theta)[0]
+
+    def jacobian(self, theta):
+        return self.evaluate(theta)[1]
+
+
+def _sigmas(static_fit_residual_std: float | None, steps, points, noise_m):
+    step_s = []
+    for step in steps:
+        s = noise_m if noise_m is not None else estimate_noise_m(step)
+        if s is None or s <= 0:
+            raise JointFitError(f"{step.source}: the laser noise is unknown (give sensor_noise_m in the manifest)")
+        step_s.append(float(s))
+    point_s = [p.measured_std_m for p in points]
+    return step_s, point_s
+
+
+def fit_joint(
+    start: MembraneParameters,
+    static: StaticData | None,
+    steps: Sequence[StepData],
+    points: Sequence[FrequencyPoint],
+    static_sigma_m: float,
+    noise_m: float | None = None,
+    prior_beta_gamma=None,
+    fit_curvature: bool = True,
+    curvature_fallback_Pa: float | None = None,
+    n_harmonics: int = 8,
+    max_evaluations: int = 60,
+    curvature_rel_ci_limit: float = CURVATURE_REL_CI_LIMIT,
+    progress: Callable[[dict], None] | None = None,
+) -> JointFitResult:
+    """Refine all identifiable parameters jointly (module docstring), starting from ``start``.
+
+    ``points`` are the frequency points with their ``kind`` (periodic or period-doubled; leave the
+    quasi-periodic ones out) and ``measured_std_m`` (None: estimated from the residuals of a first
+    pass). ``fit_curvature``: include sigma_h''(1) and sigma_h'''(1) (when sine data exist); "third":
+    only sigma_h'''(1), sigma_h''(1) held at the start's value. ``curvature_fallback_Pa``:
+    the value the caller will write when it is not identified (reported only).
+    """
+    t0 = time.perf_counter()
+    points = list(points)
+    if not steps and not points:
+        raise JointFitError("joint refinement needs a step or sine experiment")
+    step_s, point_s = _sigmas(None, steps, points, noise_m)
+    estimated_rms_sigma = any(s is None for s in point_s)
+    warnings = []
+    if estimated_rms_sigma:
+        point_s = [s if s is not None else 1e-7 for s in point_s]
+    if not points:
+        fit_curvature = False
+    objective = JointObjective(start, static, steps, points, static_sigma_m, step_s, point_s,
+                               prior_beta_gamma, fit_curvature, n_harmonics)
+    lo, hi = objective.bounds()
+
+    def run(obj, x0):
+        def fun(x):
+            r = obj.residuals(x)
+            if progress:
+                progress({"stage": "joint", "evaluation": obj.n_evaluations, "cost": float(r @ r)})
+            return r
+
+        return least_squares(fun, np.clip(x0, lo + 1e-9, hi - 1e-9), jac=obj.jacobian, bounds=(lo, hi),
+                             method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10,
+                             max_nfev=max_evaluations)
+
+    try:
+        sol = run(objective, objective.theta0())
+        if estimated_rms_sigma and points:
+            # no stated uncertainty of the RMS values: their scatter about the fit estimates it
+            res = objective.residuals(sol.x)
+            r_f = res[-len(points):] * np.asarray(point_s)
+            n_f = len(points)
+            sig = math.sqrt(float(r_f @ r_f) / max(n_f - 1, 1))
+            sig = max(sig, 1e-9)
+            point_s = [s if p.measured_std_m is None else p.measured_std_m for s, p in
+                       zip([sig] * n_f, points)]
+            objective = JointObjective(objective.parameters(sol.x), static, steps, points, static_sigma_m,
+                                       step_s, point_s, prior_beta_gamma, fit_curvature, n_harmonics)
+            sol = run(objective, objective.theta0())
+            warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
+                            f"scatter about the fit, {sig * 1e6:.3g} um")
+    except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
+        raise JointFitError(f"joint refinement failed: {exc}") from None
+    res, jac, details = objective.evaluate(sol.x)
+    params = objective.parameters(sol.x)
+    q = len(objective.stress_index)
+    combos = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
+    values = np.r_[[combos[i] for i in objective.stress_index], params.relative_permittivity,
+                   params.k1_Pa, params.eta1_Pa_s, params.eta2_Pa_s]
+    jac_phys = jac.copy()
+    for j, i in enumerate(objective.stress_index):
+        jac_phys[:, j] /= _UNITS[i]
+    stats = parameter_statistics(jac_phys, res, objective.names, values,
+                                 log_parameters=[False] * (q + 1) + [True] * 3, context="joint fit")
+    warnings += stats.warnings
+    identified = False
+    if "sigma_h''(1)_Pa" in objective.names:
+        k = objective.names.index("sigma_h''(1)_Pa")
+        identified = bool(np.isfinite(stats.relative_ci[k]) and stats.relative_ci[k] <= curvature_rel_ci_limit)
+    if not sol.success:
+        warnings.append(f"joint refinement did not report convergence: {sol.message}")
+    at_bound = [n for n, x, a, b in zip(objective.names, sol.x, lo, hi) if x - a < 1e-6 or b - x < 1e-6]
+    if at_bound:
+        warnings.append(f"joint refinement: {', '.join(at_bound)} ended at the search bound")
+    dof = max(res.size - len(values), 1)
+    return JointFitResult(
+        parameters=params, statistics=stats, names=objective.names,
+        curvature_fitted="sigma_h''(1)_Pa" in objective.names,
+        curvature_identified=identified,
+        curvature_fallback_Pa=float(curvature_fallback_Pa) if curvature_fallback_Pa is not None else float("nan"),
+        cost=float(res @ res), dof=dof, block_chi2=details["blocks"],
+        sigmas={"static_m": static_sigma_m, "step_m": list(step_s), "rms_m": [float(s) for s in point_s]},
+        frequency_points=points, simulated_rms_m=details["simulated_rms_m"],
+        n_evaluations=objective.n_evaluations, wall_time_s=time.perf_counter() - t0, warnings=warnings,
+        message=str(sol.message),
+    )
