@@ -267,8 +267,9 @@ def tune_pid(truth, slew, inv_levels, mid, seed, evals):
     # start: what a step test gives without a model (static gain ~2e-7 m/V, 18 Hz ringing): derivative
     # action damping the ringing (~0.3), an integral 10x slower than it, a small proportional part
     x0 = np.log([3e5, 5e7, 2e4, 2e-3])
+    simplex = x0 + np.vstack([np.zeros(4), np.eye(4) * 1.0])
     best = minimize(cost, x0, method="Nelder-Mead", options={"maxfev": evals, "xatol": 0.02, "fatol": 0.01,
-                                                             "initial_simplex": x0 + np.vstack([np.zeros(4), np.eye(4) * 1.0])})
+                                                             "initial_simplex": simplex})
     kp, ki, kd, tf = np.exp(best.x)
     return (kp, ki, kd, tf), best.fun, best.nfev
 
@@ -466,8 +467,10 @@ def mock_rig(args, params_file, levels, mid):
         if k.size == 1:
             delays.append(round((ta - cmd_t[k[0]]) * 1e3, 1))
     vals, counts = np.unique(np.array(delays), return_counts=True) if delays else (np.array([]), np.array([]))
-    delay_text = ", ".join(f"{v:g} ms: {100 * c / max(len(delays), 1):.0f} %" for v, c in zip(vals, counts) if c > 0.01 * len(delays))
-    return {"delay": delay_text, "steps": steps, "sine_rms": float(np.sqrt(np.mean(err ** 2))), "sine_max": float(np.max(np.abs(err))),
+    delay_text = ", ".join(f"{v:g} ms: {100 * c / max(len(delays), 1):.0f} %" for v,
+                           c in zip(vals, counts) if c > 0.01 * len(delays))
+    return {"delay": delay_text, "steps": steps, "sine_rms": float(np.sqrt(np.mean(err ** 2))),
+            "sine_max": float(np.max(np.abs(err))),
             "sim_s": sim_s, "wall_s": wall, "samples": int(t.size)}
 
 
@@ -529,7 +532,8 @@ def main() -> None:
                   "| step | overshoot [%] | 2 % settling [ms] |", "|---|---|---|"]
         for (a, b), (over, settle) in zip(zip(levels[:-1], levels[1:]), r["steps"]):
             lines.append(f"| {a * 1e6:.0f} -> {b * 1e6:.0f} um | {over:.1f} | {fmt_s(settle)} |")
-        lines += ["", f"10 Hz 30 um sine sent as a JointTrajectory (2 ms points): RMS error {r['sine_rms'] * 1e6:.2f} um, "
+        lines += ["", "10 Hz 30 um sine sent as a JointTrajectory (2 ms points): "
+                      f"RMS error {r['sine_rms'] * 1e6:.2f} um, "
                       f"max {r['sine_max'] * 1e6:.2f} um.", "",
                   f"Sample -> voltage applied by the amplifier (commands matched by value): {r['delay']}."]
         args.timing_s = 0
@@ -600,7 +604,8 @@ def tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0,
             over = [s["overshoot_pct"] for r in rs for s in r["steps"]]
             sett = [s["settling_s"] for r in rs for s in r["steps"]]
             lines.append(f"| {n} | {run_kind} | {np.median(over):.1f} / {np.max(over):.1f} | "
-                         f"{fmt_s(np.median(sett))} / {fmt_s(np.max(sett))} | {med([r['rms_m'] for r in rs]) * 1e6:.2f} | "
+                         f"{fmt_s(np.median(sett))} / {fmt_s(np.max(sett))} | "
+                         f"{med([r['rms_m'] for r in rs]) * 1e6:.2f} | "
                          f"{med([r['max_m'] for r in rs]) * 1e6:.1f} | {med([r['u_rms'] for r in rs]):.0f} | "
                          f"{med([r['u_rate'] for r in rs]):.3g} |")
     lines += ["", "Per step (noise-free run), overshoot % / settling ms:", "",
@@ -608,7 +613,8 @@ def tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0,
               + " |", "|---|" + "---|" * (len(levels) - 1)]
     for n in names:
         st = step_rows[("noise-free", n)][0]["steps"]
-        lines.append(f"| {n} | " + " | ".join(f"{s['overshoot_pct']:.1f} / {fmt_s(s['settling_s'])}" for s in st) + " |")
+        lines.append(
+            f"| {n} | " + " | ".join(f"{s['overshoot_pct']:.1f} / {fmt_s(s['settling_s'])}" for s in st) + " |")
     lines += ["", "### Tracking: 30 um sines around mid-stroke, point-to-point (100 um in 60 ms and back)", "",
               "| reference | controller | RMS error [um] | max error [um] | RMS voltage [V] | mean abs du/dt [V/s] | "
               "RMS error vs (c) |", "|---|---|---|---|---|---|---|"]
@@ -646,7 +652,8 @@ def timing(args, ident, params_file):
                   f"{ctl_t['period_std_ms']:.3f} |",
                   f"| model_node (voltage -> prediction) | {model_t['sent']} | {model_t['received']} | "
                   f"{model_t['median_ms']:.3f} | {model_t['p99_ms']:.3f} | {model_t['max_ms']:.2f} | | | |",
-                  "", f"Latency ratio controller / model_node: median {ctl_t['median_ms'] / model_t['median_ms']:.2f}x, "
+                  "", "Latency ratio controller / model_node: "
+                      f"median {ctl_t['median_ms'] / model_t['median_ms']:.2f}x, "
                   f"p99 {ctl_t['p99_ms'] / model_t['p99_ms']:.2f}x."]
     return lines
 

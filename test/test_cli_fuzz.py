@@ -147,7 +147,7 @@ def test_random_arguments_and_files_never_give_a_traceback(capsys, garbage, seed
     rng = random.Random(seed)
     commands = [(path, sub) for path, sub in _commands(build_parser()) if path[:1] not in {p[:1] for p in SKIPPED}]
     assert {path[0] for path, _ in commands} >= {"equilibrium", "simulate", "sweep", "synth", "identify", "bag",
-                                                   "replay"}
+                                                 "replay"}
     failures = []
     reached = 0  # runs that got past argparse into the command itself
     for path, sub in commands:

@@ -570,7 +570,8 @@ def test_parameters_hold_the_installed_config_values(rig, node):
 #: parameters every rclpy node has (not the package's to document)
 STANDARD_PARAMETERS = {"use_sim_time", "start_type_description_service"}
 #: declared but deliberately not in the config file: a fixed value there would override a run-time default
-NOT_IN_CONFIG = {"amplifier_node": {"enforced_max_voltage_V", "membrane_limit_V"}}  # read-only reports of what is enforced
+# read-only reports of what is enforced
+NOT_IN_CONFIG = {"amplifier_node": {"enforced_max_voltage_V", "membrane_limit_V"}}
 
 
 @pytest.mark.parametrize("node", list(NODES))

@@ -5,7 +5,8 @@ The texts are byte-for-byte copies of the ``share/<pkg>/msg/<Type>.msg`` files o
 bag written without ROS carries the same schema text as one written by ``ros2 bag record``.
 They are a fallback only: when a ROS installation (apt or the PyPI wheels) provides the
 definitions, its own texts are recorded (they differ between distros: Humble's Range has no
-``variance``, and its comments differ). Only the types the DEA rig publishes are included; other types need a ROS installation (or an
+``variance``, and its comments differ). Only the types the DEA rig publishes are included; other types
+need a ROS installation (or an
 explicit ``extra_definitions`` mapping passed to :class:`~dea_ros.bag.definitions.MessageDefinitionStore`).
 """
 

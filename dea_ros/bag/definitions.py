@@ -1,4 +1,4 @@
-"""Message definitions (MCAP ``ros2msg`` schemas) and RIHS01 type hashes, without ROS sourced.
+r"""Message definitions (MCAP ``ros2msg`` schemas) and RIHS01 type hashes, without ROS sourced.
 
 Lookup order for the ``.msg`` text of ``pkg/msg/Type``:
 
@@ -12,7 +12,7 @@ The full schema text is built exactly like rosbag2's ``LocalMessageDefinitionSou
 (``rosbag2_cpp/src/rosbag2_cpp/message_definitions/local_message_definition_source.cpp``): the
 root ``.msg`` text, then for each dependency (field types matched at line starts, sorted, each
 type once, depth first) a line of 80 ``=``, a line ``MSG: <type as written in the field>`` (e.g.
-``MSG: std_msgs/Header``) and that type's text, each block preceded by ``"\\n"``.
+``MSG: std_msgs/Header``) and that type's text, each block preceded by ``"\n"``.
 
 Type hashes (``RIHS01_<sha256 hex>``, REP-2016) are read from the ``<Type>.json`` type description
 that rosidl installs next to the ``.msg`` (``type_hashes[]``), only when the ``.msg`` itself came

@@ -410,7 +410,8 @@ class McapChunkedWriter:
         crc = zlib.crc32(summary_bytes)
         crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
         self._write(summary_bytes)
-        self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+        self._write_record(Footer(summary_start=summary_start,
+                           summary_offset_start=summary_offset_start, summary_crc=crc))
         self._write(MCAP_MAGIC)
         self._stream.flush()
 
@@ -893,7 +894,8 @@ def _verify_summary(handle, scan: McapScan) -> None:
         for key, value in expected.items():
             if getattr(stats, key) != value:
                 problems.append(f"summary statistics {key} is {getattr(stats, key)}, the data have {value}")
-        if stats.channel_message_counts and {k: v for k, v in stats.channel_message_counts.items() if v} != dict(counts):
+        nonzero = {k: v for k, v in stats.channel_message_counts.items() if v}
+        if stats.channel_message_counts and nonzero != dict(counts):
             problems.append("summary statistics channel_message_counts differ from the data")
     chunk_indexes = records[Opcode.CHUNK_INDEX]
     if chunk_indexes or scan.chunks:
@@ -934,7 +936,8 @@ def finish_in_place(
     Data End, the summary section (schemas, channels, statistics, chunk and metadata indexes),
     Footer and magic are appended. If that does not fit (disk full), less is written: no
     summary (readers then scan the file linearly, which needs no index), then fewer extra
-    metadata records, most important (first) kept longest, down to none (50 bytes). If even that fails the file is left cut back to its valid prefix and
+    metadata records, most important (first) kept longest, down to none (50 bytes). If even that fails
+    the file is left cut back to its valid prefix and
     :class:`BagError` says so. Returns the bytes cut off.
 
     ``scan`` must come from :func:`scan_mcap` on this file, without damage.

@@ -174,7 +174,8 @@ def recover_bag(
             raise BagError(f"cannot recover {file_path}: it ends before the MCAP Header record")
         damage.extend(scan.damage)
         if scan.data_lost and not salvage:
-            listing = "; ".join(scan.damage[:5]) + (f" (and {len(scan.damage) - 5} more)" if len(scan.damage) > 5 else "")
+            listing = "; ".join(scan.damage[:5]) + \
+                                (f" (and {len(scan.damage) - 5} more)" if len(scan.damage) > 5 else "")
             raise BagError(
                 f"cannot recover {file_path}: its data are damaged, not only cut short: {listing}. Nothing was "
                 f"changed. Rerun with --salvage (salvage=True) to keep the {scan.message_count} readable "

@@ -119,7 +119,8 @@ class _Topic:
 
     __slots__ = ("name", "type_name", "qos", "channel_id", "type_hash", "count", "schema_text", "encoder")
 
-    def __init__(self, name: str, type_name: str, qos: List[QosProfile], channel_id: int, type_hash: str, schema_text: str):
+    def __init__(self, name: str, type_name: str, qos: List[QosProfile], channel_id: int, type_hash: str,
+                 schema_text: str):
         self.name = name
         self.type_name = type_name
         self.qos = qos

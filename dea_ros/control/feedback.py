@@ -56,7 +56,7 @@ class FeedbackGains:
     kd_per_s: float
     derivative_filter_s: float
     damping_ratio: float             # zeta of the closed-loop mechanical mode
-    integrator_pole_rad_per_s: float # p_i
+    integrator_pole_rad_per_s: float  # p_i
     loop_delay_s: float              # tau used in the design
     operating_point_m: float
     stiffness_per_s2: float          # k of the linearisation
@@ -68,12 +68,14 @@ class FeedbackGains:
     crossover_rad_per_s: float
 
     def describe(self) -> str:
-        return (f"closed-loop mode at the model's {math.sqrt(self.stiffness_per_s2) / (2 * math.pi):.2f} Hz with damping "
+        mode_Hz = math.sqrt(self.stiffness_per_s2) / (2 * math.pi)
+        return (f"closed-loop mode at the model's {mode_Hz:.2f} Hz with damping "
                 f"{self.damping_ratio:.3f}, integrator pole -{self.integrator_pole_rad_per_s:.1f} rad/s "
                 f"(model k = {self.stiffness_per_s2:.4g} 1/s^2, "
                 f"c = {self.damping_per_s:.3g} 1/s at {self.operating_point_m * 1e6:.1f} um; loop delay "
                 f"{self.loop_delay_s * 1e3:.2f} ms): kp = {self.kp_per_s2:.4g} 1/s^2, ki = {self.ki_per_s3:.4g} 1/s^3, "
-                f"kd = {self.kd_per_s:.4g} 1/s, Tf = {self.derivative_filter_s * 1e3:.3f} ms; Ms {self.max_sensitivity:.2f}, "
+                f"kd = {self.kd_per_s:.4g} 1/s, Tf = {self.derivative_filter_s * 1e3:.3f} ms; "
+                f"Ms {self.max_sensitivity:.2f}, "
                 f"noise gain {self.noise_gain:.3f}, "
                 f"phase margin "
                 f"{self.phase_margin_deg:.1f} deg, gain margin {self.gain_margin:.2f}, crossover "

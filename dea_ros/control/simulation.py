@@ -122,4 +122,3 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
         if i < n_total:
             plant.step(u_applied, h)
     return ClosedLoopResult(t_out[:j], true[:j], meas[:j], cmd[:j], applied[:j])
-

@@ -980,7 +980,8 @@ def check_laser_sensor(settings: LaserSensorSettings, expected: LaserSensorExpec
         if model_range is not None and abs(model_range - reported_range) > _RANGE_ABS_TOL_M:
             mismatches.append(f"measuring range: GETINFO is inconsistent, name {model!r} but measuring range "
                               f"{reported_range * 1e3:g} mm")
-        if expected.measuring_range_m is not None and abs(reported_range - expected.measuring_range_m) > _RANGE_ABS_TOL_M:
+        if expected.measuring_range_m is not None \
+                and abs(reported_range - expected.measuring_range_m) > _RANGE_ABS_TOL_M:
             mismatches.append(f"measuring range: the sensor reports {reported_range * 1e3:g} mm but parameter "
                               f"measuring_range_m is {expected.measuring_range_m * 1e3:g} mm; set "
                               f"measuring_range_m to the head's range or connect the right head")
@@ -1065,7 +1066,8 @@ class PlausibilityFilter:
         self.jump_tolerance_m = float(jump_tolerance_m)
         if not (math.isfinite(self.jump_tolerance_m) and self.jump_tolerance_m >= 0.0):
             raise ValueError(f"jump_tolerance_m must be >= 0 m, got {jump_tolerance_m!r}")
-        if isinstance(confirm_samples, bool) or int(confirm_samples) != confirm_samples or not 1 <= confirm_samples <= 100:
+        if isinstance(confirm_samples, bool) or int(confirm_samples) != confirm_samples \
+                or not 1 <= confirm_samples <= 100:
             raise ValueError(f"confirm_samples must be an integer in [1, 100], got {confirm_samples!r}")
         self.confirm_samples = int(confirm_samples)
         self.accepted = 0

@@ -404,6 +404,7 @@ class ILD1320Sensor(DisplacementSensor):
             "samples_ignored_while_configuring": self.samples_ignored_while_configuring,
             "plausibility_reanchors": self._filter.reanchors,
         }
+
     @property
     def measuring_range_m(self) -> float:
         return self._decoder.measuring_range_m
@@ -791,7 +792,8 @@ class ILD1320Sensor(DisplacementSensor):
         """
         n = int(averaging_samples)
         if not 1 <= n <= (self._recent_valid_m.maxlen or 0):
-            raise ValueError(f"averaging_samples must be in [1, {self._recent_valid_m.maxlen}], got {averaging_samples!r}")
+            raise ValueError(
+                f"averaging_samples must be in [1, {self._recent_valid_m.maxlen}], got {averaging_samples!r}")
         self._pump()
         limit = timeout_s if timeout_s is not None else max(self._timeout_s, 4.0 * n / self._rate_hz)
         deadline = time.monotonic() + float(limit)

@@ -38,7 +38,8 @@ def _progress_printer(stream):
             msg = f"[static] {event.get('method')}{extra}: cost {event.get('cost', float('nan')):.6g}{rms} ({event.get('evaluations')} evaluations)"
         elif stage == "synth":
             what = event.get("what")
-            msg = f"[synth] {what}" + (f" {event['frequency_Hz']:g} Hz: RMS {event['rms_um']:.4g} um" if what == "sine" else "")
+            msg = f"[synth] {what}" + \
+                (f" {event['frequency_Hz']:g} Hz: RMS {event['rms_um']:.4g} um" if what == "sine" else "")
         else:
             msg = str(event)
         print(msg, file=stream, flush=True)

@@ -457,7 +457,6 @@ def point_solution(params: MembraneParameters, point: FrequencyPoint, n_harmonic
         return solve_native(params, point.excitation, n_harmonics, stability=False)  # cold (homotopy)
 
 
-
 def periodic_rms_gradient(params: MembraneParameters, sol: PeriodicSolution, d0: float, dd0=None,
                           directions=None, permittivity: bool = False) -> tuple[float, np.ndarray]:
     """d_rms (eq. 21) of a harmonic-balance solution and its exact gradient.

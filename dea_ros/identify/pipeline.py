@@ -196,8 +196,6 @@ def _jsonable(obj):
     return obj
 
 
-
-
 # --------------------------------------------------------------------------- classification
 def _sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
     return frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), np.unique(np.asarray(freqs, float)),
@@ -763,7 +761,8 @@ def identify(
                                       "unknown curvature).")
                         free_joint = joint
                         joint = held
-                        joint.warnings = free_joint.warnings + [w for w in held.warnings if w not in free_joint.warnings]
+                        joint.warnings = free_joint.warnings + \
+                            [w for w in held.warnings if w not in free_joint.warnings]
                         params = written
                         near = [c for c in classification if c["used"] != "left out"
                                 and c["measured_rms_m"] > 0.5 * max(x["measured_rms_m"] for x in classification)]
@@ -827,4 +826,3 @@ def identify(
                                 joint=joint, classification=classification,
                                 curvature_identified=curvature_identified, curvature_written_Pa=curvature_written,
                                 curvature_status=curvature_status)
-

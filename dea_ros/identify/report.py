@@ -391,7 +391,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
     if "steps" in ev:
         out.append("Step responses (Table III; error = model - data):")
         out.append("")
-        out.append("| Record | IAE [mm s] | ISE [mm^2 s] | ITAE [mm s^2] | RMS error [um] | max error [um] | noise [um] |")
+        out.append(
+            "| Record | IAE [mm s] | ISE [mm^2 s] | ITAE [mm s^2] | RMS error [um] | max error [um] | noise [um] |")
         out.append("|---|---|---|---|---|---|---|")
         for s_ in ev["steps"]:
             out.append(f"| {Path(s_['source']).name} | {_fmt(s_['IAE_mm_s'])} | {_fmt(s_['ISE_mm2_s'])} | "
@@ -414,7 +415,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             out.append("| Amplitude | Resonance peak, model [Hz] | Resonance peak, data [Hz] | Error (Table IV) |")
             out.append("|---|---|---|---|")
             for r in entry["resonance"]:
-                meas = (_fmt(r["measured_peak_Hz"]) if r.get("measured") else f"not measured ({r.get('measured_note')})")
+                meas = (_fmt(r["measured_peak_Hz"]) if r.get("measured")
+                        else f"not measured ({r.get('measured_note')})")
                 errs = f"{_fmt(r['error_percent'], 3)} %" if r.get("error_percent") is not None else "-"
                 out.append(f"| {r['amplitude_V'] / 1e3:g} kV | {_fmt(r['simulated_peak_Hz'], 6)} "
                            f"({_fmt(r['simulated_peak_rms_m'] * 1e6)} um) | {meas} | {errs} |")
@@ -509,7 +511,8 @@ def _stats_table(stats) -> str:
     lines.append("| | " + " | ".join(stats.names) + " |")
     lines.append("|---" * (len(stats.names) + 1) + "|")
     for i, n in enumerate(stats.names):
-        lines.append(f"| {n} | " + " | ".join(f"{stats.correlation[i, j]:+.3f}" for j in range(len(stats.names))) + " |")
+        lines.append(
+            f"| {n} | " + " | ".join(f"{stats.correlation[i, j]:+.3f}" for j in range(len(stats.names))) + " |")
     lines.append("")
     lines.append(f"Residual std. {_fmt(stats.residual_std)} ({stats.dof} degrees of freedom), rank {stats.rank}.")
     lines.append("")

@@ -25,7 +25,8 @@ Parameters (all read-only: what a parameter read reports is what runs): ``port``
 500, 1000, 2000), ``measuring_range_m`` (of the head: 0.01 for the ILD1320-10), ``zero_offset_m``
 (the distance reading of the flat membrane: displacement = reading - zero_offset, applied at the
 first connect; -1 keeps the backend's tare; a later ``~/tare`` survives reconnects),
-``max_speed_m_per_s`` and ``jump_tolerance_m`` (plausibility), ``poll_period_s``, ``backend`` (``ild1320`` or ``mock``), ``frame_id``. Service ``~/tare``
+``max_speed_m_per_s`` and ``jump_tolerance_m`` (plausibility), ``poll_period_s``, ``backend`` (``ild1320``
+or ``mock``), ``frame_id``. Service ``~/tare``
 (std_srvs/Trigger): zero on the current position (averaging).
 """
 from __future__ import annotations

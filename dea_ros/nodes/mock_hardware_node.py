@@ -141,7 +141,8 @@ class MockHardwareNode(Node):
         super().__init__("mock_hardware_node", **kwargs)
         source = declare_str(self, "params_file", "A2", "true membrane of the simulated rig (preset or YAML)")
         self.noise_m = declare_float(self, "noise_m", 1e-6, "laser noise, standard deviation, m", 0.0, 1e-3)
-        quant = declare_float(self, "quantisation_m", 10e-3 * 1.02 / 65520, "laser resolution, m (ILD1320-10: 0.156 um)",
+        quant = declare_float(self, "quantisation_m", 10e-3 * 1.02 / 65520,
+                              "laser resolution, m (ILD1320-10: 0.156 um)",
                               0.0, 1e-4)
         latency = declare_float(self, "sensor_latency_s", 0.0, "laser latency, s", 0.0, 0.1)
         self.physics_dt_s = declare_float(self, "physics_dt_s", 0.5e-3, "RK4 step of the membrane, s",

@@ -1,7 +1,7 @@
-"""Running nodes: one node per process (``ros2 run``), or several on one executor (the rig).
+r"""Running nodes: one node per process (``ros2 run``), or several on one executor (the rig).
 
 Both paths install SIGINT/SIGTERM/SIGHUP/SIGQUIT handling (Ctrl-C, kill, a closed SSH
-session, Ctrl-\\) that lets a node's ``shutdown_safely()`` (the amplifier ramps its voltage
+session, Ctrl-\) that lets a node's ``shutdown_safely()`` (the amplifier ramps its voltage
 to 0 V) run before rclpy goes down.
 """
 from __future__ import annotations

@@ -632,6 +632,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
                            "mu": _critical(mu_c), "stable_before": c_lo == 0, "fold": fold,
                            "count_before": c_lo, "count_after": counts[i + 1]})
     # ---- local maxima of d_rms along the arclength: d(d_rms)/ds = grad . t changes sign
+
     def slope(z, tz):
         return float(_rms_and_gradient(tracer, z, d0)[1] @ tz)
 

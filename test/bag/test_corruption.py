@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from dea_ros.bag import BagError, BagReader, BagWriter, recover_bag
+from dea_ros.bag import BagError, BagReader, BagWriter
 from dea_ros.bag.mcap_io import scan_mcap
 from dea_ros.cli import main
 

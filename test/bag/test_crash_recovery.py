@@ -228,7 +228,6 @@ def test_recovered_humble_bag_keeps_the_humble_format(tmp_path):
         assert reader.message_count == report.message_count
 
 
-
 # -- a full disk: recover never leaves a partial file and says so ------------------------------
 def _run_with_file_size_limit(limit_bytes: int, *argv):
     """``python -m dea_ros.cli ARGV`` in a process that cannot grow a file beyond ``limit_bytes``

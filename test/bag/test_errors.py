@@ -194,7 +194,8 @@ def test_stale_metadata_yaml_is_reported(tmp_path):
 def test_requested_topics_and_types_are_checked(tmp_path):
     bag = _bag(tmp_path / "bag")
     with BagReader(bag) as reader:
-        with pytest.raises(BagError, match=r"topic\(s\) \['/nope'\] not in bag .*available: \['/dea/range', '/dea/voltage'\]"):
+        with pytest.raises(BagError,
+                           match=r"topic\(s\) \['/nope'\] not in bag .*available: \['/dea/range', '/dea/voltage'\]"):
             list(reader.messages(["/dea/voltage", "/nope"]))
         with pytest.raises(BagError) as error:
             reader.require_topics(

@@ -230,7 +230,8 @@ def test_humble_format_is_version_5_with_integer_qos(tmp_path, monkeypatch, topi
         }
     with AnyReader([bag]) as reader:
         count = 0
-        for connection, _t, raw in reader.messages(connections=[c for c in reader.connections if c.topic == "/dea/battery"]):
+        battery = [c for c in reader.connections if c.topic == "/dea/battery"]
+        for connection, _t, raw in reader.messages(connections=battery):
             fields_equal(topics_spec["/dea/battery"][3](count), reader.deserialize(raw, connection.msgtype))
             count += 1
         assert count == topics_spec["/dea/battery"][2]
@@ -322,7 +323,8 @@ def test_bag_written_by_rosbags_is_readable(tmp_path, version):
     )
     bag = tmp_path / "from_rosbags"
     with Writer(bag, version=version, storage_plugin=StoragePlugin.MCAP) as writer:
-        connection = writer.add_connection("/v", "std_msgs/msg/Float64", typestore=typestore, offered_qos_profiles=[qos])
+        connection = writer.add_connection("/v", "std_msgs/msg/Float64",
+                                           typestore=typestore, offered_qos_profiles=[qos])
         for i in range(20):
             writer.write(connection, 100 + i, typestore.serialize_cdr(Float64(data=i * 1.5), "std_msgs/msg/Float64"))
     with BagReader(bag) as reader:

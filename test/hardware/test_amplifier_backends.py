@@ -374,7 +374,8 @@ class TestRigDescription:
         board = DaqBoardInfo.known("USB-1208HS-4AO", "SN1")
         d = describe_amplifier_rig(expect(monitor_channel=1, enable_port="AUXPORT", enable_bit=3), board)
         assert d.ok and d.monitor_range == "BIP10VOLTS"  # covers 10 kV / 1000 V/V; bipolar shows a polarity error
-        bad = describe_amplifier_rig(expect(monitor_channel=8, monitor_input_mode="SINGLE_ENDED", enable_port="FIRSTPORTA",
+        bad = describe_amplifier_rig(expect(monitor_channel=8, monitor_input_mode="SINGLE_ENDED",
+                                            enable_port="FIRSTPORTA",
                                             enable_bit=3), board)
         assert any("monitor_channel = 8" in m and "0..7" in m for m in bad.mismatches)
         assert any("enable_port = FIRSTPORTA" in m and "AUXPORT" in m for m in bad.mismatches)

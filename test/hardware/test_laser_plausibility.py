@@ -158,14 +158,16 @@ def test_model_and_rate_mismatches_and_settings_to_reset():
 def test_filter_confirms_the_first_values_then_follows_the_physics():
     f = PlausibilityFilter(MR)
     out = [f.check(k * PERIOD, 0.005 + 1e-6 * k) for k in range(6)]
-    assert out[:2] == [MeasurementError.UNCONFIRMED] * 2 and out[2:] == pytest.approx([0.005 + 1e-6 * k for k in range(2, 6)])
+    assert out[:2] == [MeasurementError.UNCONFIRMED] * \
+        2 and out[2:] == pytest.approx([0.005 + 1e-6 * k for k in range(2, 6)])
     # a spike (a corrupted frame) is discarded, the next true value is accepted
     assert f.check(6 * PERIOD, 0.008) is MeasurementError.IMPLAUSIBLE_JUMP
     assert f.check(7 * PERIOD, 0.005007) == pytest.approx(0.005007)
     # the jump limit grows with the time since the last accepted value
     limit = DEFAULT_MAX_SPEED_M_PER_S * 10 * PERIOD + DEFAULT_JUMP_TOLERANCE_M
     assert f.check(17 * PERIOD, 0.005007 + 0.98 * limit) == pytest.approx(0.005007 + 0.98 * limit)
-    assert f.check(18 * PERIOD, 0.005007 + 0.98 * limit + 1.1 * f.allowed_jump_m(PERIOD)) is MeasurementError.IMPLAUSIBLE_JUMP
+    jump = 0.005007 + 0.98 * limit + 1.1 * f.allowed_jump_m(PERIOD)
+    assert f.check(18 * PERIOD, jump) is MeasurementError.IMPLAUSIBLE_JUMP
     # sensor error values pass through, counted
     assert f.check(19 * PERIOD, MeasurementError.NO_PEAK) is MeasurementError.NO_PEAK
     assert f.discarded[MeasurementError.NO_PEAK] == 1 and f.discarded[MeasurementError.IMPLAUSIBLE_JUMP] == 2

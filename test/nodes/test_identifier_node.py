@@ -8,7 +8,6 @@ import time
 import warnings
 from pathlib import Path
 
-import numpy as np
 import pytest
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node

@@ -22,10 +22,12 @@ def test_predictions_follow_the_core_stepper(ros_context, spin_until):
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     ex.add_node(peer)
-    assert spin_until(ex, lambda: pub.get_subscription_count() > 0 and peer.count_publishers("displacement_predicted") > 0)
+    assert spin_until(ex, lambda: pub.get_subscription_count() >
+                      0 and peer.count_publishers("displacement_predicted") > 0)
     # a voltage step stamped in the far future, so the timer path never interferes
     t0 = round(node.now_ns() * 1e-9) + 1.0e6
     voltages = np.where(np.arange(300) < 50, 0.0, 2200.0)
+
     def n_pred():
         return len([m for m in got if stamp_to_s(m.header.stamp) >= t0])
 

@@ -93,8 +93,9 @@ def test_setpoints_and_trajectories_drive_the_plant_within_the_amplifier_limits(
         traj_pub = node.create_publisher(JointTrajectory, f"{ns}/joint_trajectory", COMMAND_QOS)
         joints, diags, stamped = [], [], []
         node.create_subscription(JointState, f"{ns}/joint_states", joints.append, 10)
-        node.create_subscription(BatteryState, f"{ns}/position_controller_node/command_stamped", lambda m: stamped.append(
-            (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.voltage)), SENSOR_QOS)
+        node.create_subscription(
+            BatteryState, f"{ns}/position_controller_node/command_stamped",
+            lambda m: stamped.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.voltage)), SENSOR_QOS)
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         assert spin_until(ex, lambda: plant.pub.get_subscription_count() > 0 and
                           node.count_publishers(f"{ns}/voltage_cmd") > 0, timeout_s=30.0), proc.stderr

@@ -32,8 +32,8 @@ def test_voltage_step_on_the_mock_rig_matches_the_model(ros_context, spin_until)
     amp = AmplifierNode(context=ros_context, parameter_overrides=[
         P("params_file", value="A1"), P("mock_port", value=port), P("update_rate_hz", value=500.0),
         P("watchdog_timeout_s", value=1.0)])
-    model = ModelNode(context=ros_context, parameter_overrides=[P("params_file", value="A1"),
-                                                               P("rate_hz", value=500.0)])
+    model = ModelNode(context=ros_context,
+                      parameter_overrides=[P("params_file", value="A1"), P("rate_hz", value=500.0)])
     peer = Node("experimenter", context=ros_context)
     cmd = peer.create_publisher(Float64, "voltage_cmd", COMMAND_QOS)
     meas, pred, volt = [], [], []
