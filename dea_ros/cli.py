@@ -223,7 +223,7 @@ def load_voltage_csv(path: str):
     if not p.is_file():
         raise CliError(f"--input-csv: no such file {path}")
     try:
-        data = np.genfromtxt(p, delimiter=",", names=True, ndmin=1)
+        data = np.atleast_1d(np.genfromtxt(p, delimiter=",", names=True))  # (ndmin=: numpy >= 1.23 only)
     except Exception as exc:  # noqa: BLE001 - any parse failure (binary, ragged rows, ...)
         raise CliError(f"--input-csv {path}: not a CSV with a header row ({type(exc).__name__}: {exc})") from None
     names = data.dtype.names or ()
