@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy import stats as scipy_stats
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
@@ -302,13 +303,20 @@ def _kinds(classification: list) -> list:
 
 
 def _static_sigma(static: StaticFitResult | None) -> float:
+    """Weight of the static points in the joint chi-square: the static fit's residual standard
+    deviation s, times t_0.975(dof) / z_0.975 -- s comes from few points (e.g. 9 degrees of freedom),
+    and the joint intervals, which use the quantile of the joint fit's many degrees of freedom,
+    would otherwise be too narrow for the parameters the static points determine (sigma_h(1))."""
     if static is None:
         return 1.0
     st = static.statistics
     s = float(st.residual_std) if st is not None and math.isfinite(st.residual_std) else float("nan")
+    dof = int(st.dof) if st is not None else 0
     if not (math.isfinite(s) and s > 0):
         r = static.residuals_m
         s = float(np.sqrt(np.mean(r**2))) if r.size else 1e-7
+    if dof >= 1:
+        s *= float(scipy_stats.t.ppf(0.975, dof) / scipy_stats.norm.ppf(0.975))
     return max(s, 1e-9)
 
 
