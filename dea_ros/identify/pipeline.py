@@ -699,7 +699,7 @@ def identify(
                 warnings += [w for w in dynamic.warnings if w not in warnings]
                 classification = classify_records(params, experiments, n_harmonics, noise)
         timings["classification"] = time.perf_counter() - t0
-        if refine == "joint" and static is not None and static.method == "lsq" and stress_terms == 2:
+        if refine == "joint" and static is not None and static.method == "lsq":
             t0 = time.perf_counter()
             fallback = _curvature_fallback(static, params)
             fit_c = (fit_curvature is not False) and bool(experiments.sines)
@@ -709,6 +709,7 @@ def identify(
                     joint = fit_joint(params, experiments.all_static(), experiments.steps, pts,
                                       _static_sigma(static), noise_m=noise,
                                       prior_beta_gamma=static.prior_beta_gamma, fit_curvature=fit_c,
+                                      fit_slope=stress_terms >= 2,
                                       curvature_fallback_Pa=float(EXTENDED_COMBINATION_MATRIX[2] @ fallback),
                                       n_harmonics=n_harmonics, progress=progress)
                 except JointFitError as exc:
@@ -755,12 +756,14 @@ def identify(
                         held = fit_joint(_with_base_curvature(params, fallback), experiments.all_static(),
                                          experiments.steps, pts_now, _static_sigma(static), noise_m=noise,
                                          prior_beta_gamma=static.prior_beta_gamma, fit_curvature=False,
+                                         fit_slope=stress_terms >= 2,
                                          curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics, progress=progress)
                         how = "both curvature terms at the base values"
                         if held.cost - chi_free > 9.0:
                             held = fit_joint(start, experiments.all_static(), experiments.steps, pts_now,
                                              _static_sigma(static), noise_m=noise,
                                              prior_beta_gamma=static.prior_beta_gamma, fit_curvature="third",
+                                             fit_slope=stress_terms >= 2,
                                              curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics,
                                              progress=progress)
                             how = "sigma_h''(1) at the base value, sigma_h'''(1) refitted (the data reject both at base)"
@@ -787,8 +790,8 @@ def identify(
                     curvature_identified = None
         elif experiments.sines:
             if refine == "joint":
-                warnings.append("joint refinement skipped: it needs the least-squares static fit with sigma_h(1) and "
-                                "sigma_h'(1) (static_method='lsq', stress_terms=2); the two-stage result is reported")
+                warnings.append("joint refinement skipped: it needs the least-squares static fit (static_method='lsq'); "
+                                "the two-stage result is reported")
             if not dynamic.curvature_fitted:
                 curvature_identified, curvature_status = False, "not identified"
                 warnings.append(
