@@ -37,7 +37,11 @@ from dea_ros.model import preset, static_equilibrium  # noqa: E402
 from dea_ros.solvers.continuation import frequency_sweep  # noqa: E402
 from dea_ros.solvers.inputs import SinePeriodic, SineVoltage  # noqa: E402
 from dea_ros.solvers.integrate import simulate  # noqa: E402
-from dea_ros.solvers.steady_state import integrate_to_steady_state, shoot_periodic_orbit  # noqa: E402
+from dea_ros.solvers.steady_state import (  # noqa: E402
+    SteadyStateError,
+    integrate_to_steady_state,
+    shoot_periodic_orbit,
+)
 
 GRID = np.linspace(0.1, 20.0, 200)
 
@@ -93,10 +97,14 @@ def band_rows(name: str, quick: bool) -> list[str]:
         extra = ""
         if b.kind == "period-doubled" and inside:
             mid = inside[len(inside) // 2]
-            fi = integrate_to_steady_state(p, SinePeriodic(2500.0, mid.frequency_Hz), tol=1e-9, max_time_s=3000.0)
-            e = 100 * abs(mid.d_rms_m / fi.displacement_rms(d0) - 1)
-            extra = (f"; from rest at {mid.frequency_Hz:g} Hz: {fi.displacement_rms(d0) * 1e6:.2f} um "
-                     f"({e:.2g} %)")
+            try:
+                fi = integrate_to_steady_state(p, SinePeriodic(2500.0, mid.frequency_Hz), tol=1e-8,
+                                               max_time_s=3000.0)
+                e = 100 * abs(mid.d_rms_m / fi.displacement_rms(d0) - 1)
+                extra = (f"; from rest at {mid.frequency_Hz:g} Hz: {fi.displacement_rms(d0) * 1e6:.2f} um "
+                         f"({e:.2g} %, {fi.iterations} periods)")
+            except SteadyStateError as exc:
+                extra = f"; from rest at {mid.frequency_Hz:g} Hz: not converged ({exc})"
         rows.append(f"| {name} | {b.f_start_Hz:.4f}-{b.f_end_Hz:.4f} | {b.kind} ({', '.join(b.branches)}) | "
                     f"{b.start_edge} .. {b.end_edge} | " + "; ".join(cells) + " um | "
                     + (f"max {worst:.2g} % vs shooting" if worst else "window mean, see text") + extra + " |")
@@ -123,6 +131,7 @@ def main() -> None:
     out.append("|---|---|---|---|---|---|")
     for name in ("LP1", "A1", "A2"):
         out += band_rows(name, args.quick)
+        print(out[-1], flush=True)
     out.append("")
     text = "\n".join(out)
     print(text)

@@ -466,8 +466,12 @@ class SineSeries:
         and of f (period T), up to 0.45 of the sampling rate; their residual RMS is compared
         with the laser noise (``noise_m``, else estimated from the record). Period T when the
         odd harmonics are significant (more than 5 sigma of chi-square and an RMS above 3x the
-        noise) and the full-period fit leaves no more than 2x the noise; quasi-periodic when
-        that fit leaves more; period T/2 otherwise.
+        noise) and the full-period fit leaves no more than 2x the noise; when that fit leaves more,
+        ``not settled`` if the misfit sits in the first half of the record (a transient that has not
+        died out: the record began too soon after the frequency change), else quasi-periodic;
+        period T/2 otherwise. Misfits within what the applied voltage's own departure from
+        periodicity explains (3x its relative misfit + 2 % of the response spread: commands at a
+        rate incommensurate with f) do not count.
         """
         w, n_periods, _wrap = self.period_weights()
         keep = w > 0
@@ -479,32 +483,52 @@ class SineSeries:
         top = max(2, min(60, int(0.45 * fs / self.frequency_Hz)))
         theta = 2.0 * np.pi * self.frequency_Hz * t
 
-        def fit(harmonics):
+        def fit(harmonics, y=d):
             cols = [np.ones_like(theta)]
             for k in harmonics:
                 cols += [np.cos(k * theta), np.sin(k * theta)]
             a = np.column_stack(cols)
-            coef, *_ = np.linalg.lstsq(a, d, rcond=None)
-            res = d - a @ coef
+            coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+            res = y - a @ coef
+            fit.residual = res
             return float(res @ res), a.shape[1]
+
+        # how periodic the applied voltage itself is: a command rate incommensurate with f (a DAQ
+        # or amplifier updating at 250 Hz) makes u^2, and so the response, not exactly periodic
+        u2 = self.voltage_V[keep] ** 2
+        u2_spread = float(np.std(u2))
+        input_misfit = (math.sqrt(fit(range(1, top + 1), u2)[0] / u2.size) / u2_spread) if u2_spread > 0 else 0.0
+        d_spread = max(float(np.std(d)), 1e-15)
+        tolerance = 3.0 * input_misfit + 0.02       # non-periodic share the input explains
 
         rss_half, p_half = fit(range(2, top + 1, 2))
         rss_full, p_full = fit(range(1, top + 1))
+        res_full = fit.residual
         n = d.size
         r_half = math.sqrt(rss_half / max(n - p_half, 1))
         r_full = math.sqrt(rss_full / max(n - p_full, 1))
         extra = p_full - p_half
         chi2_gain = (rss_half - rss_full) / sigma**2
         odd_rms = math.sqrt(max(rss_half - rss_full, 0.0) / n)
-        if r_full > 2.0 * sigma:
+        # where the non-periodic part is: a transient that has not died out (the record started too soon
+        # after the frequency change) leaves it at the start; a torus (quasi-periodic) everywhere
+        halves = np.array_split(res_full, 2)
+        r_first, r_second = (float(np.sqrt(np.mean(h * h))) for h in halves)
+        beyond_input = r_full > tolerance * d_spread
+        if r_full > 2.0 * sigma and beyond_input and r_first > 2.0 * max(r_second, sigma):
+            kind = "not settled"
+        elif r_full > 2.0 * sigma and beyond_input:
             kind = "quasi-periodic"
-        elif chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra) and odd_rms > 3.0 * sigma:
+        elif (chi2_gain > extra + 5.0 * math.sqrt(2.0 * extra) and odd_rms > 3.0 * sigma
+              and odd_rms > tolerance * d_spread):
             # odd harmonics well above the noise (aliased even harmonics near the Nyquist
             # frequency stay at the noise level)
             kind = "period-doubled"
         else:
             kind = "periodic"
         return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "odd_rms_m": odd_rms,
+                "residual_first_half_m": r_first, "residual_second_half_m": r_second,
+                "input_nonperiodic_fraction": input_misfit, "response_spread_m": d_spread,
                 "noise_m": sigma, "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):

@@ -67,14 +67,13 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
     ]
     for fr in (metrics.get("frequency_response") or []) if isinstance(metrics, dict) else []:
         for res in fr.get("resonance", []):
-            measured, model, error = res.get("measured_peak_Hz"), res.get("simulated_peak_Hz"), res.get("error_percent")
-            if measured is None or model is None or error is None:  # the data do not bracket the peak densely
-                model_text = "not computed" if model is None else f"{model:.3f} Hz"
-                headline.append(f"resonance at {res['amplitude_V']:g} V: measured peak not measured "
-                                f"(the frequencies do not bracket it densely); model {model_text}")
+            if res.get("measured"):
+                headline.append(
+                    f"resonance at {res['amplitude_V']:g} V: measured {res['measured_peak_Hz']:.3f} Hz, "
+                    f"model {res['simulated_peak_Hz']:.3f} Hz ({res['error_percent']:.2f} % apart)")
             else:
-                headline.append(f"resonance at {res['amplitude_V']:g} V: measured {measured:.3f} Hz, "
-                                f"model {model:.3f} Hz ({error:+.2f} %)")
+                headline.append(f"resonance at {res['amplitude_V']:g} V: model {res['simulated_peak_Hz']:.3f} Hz; "
+                                f"measured peak {res.get('measured_note', 'not measured')}")
     for k, st in enumerate(metrics.get("steps", []) if isinstance(metrics, dict) else []):
         headline.append(f"step {k + 1}: model vs measured RMS error {st['rms_error_um']:.2f} um "
                         f"(IAE {st['IAE_mm_s']:.4f} mm s)")

@@ -113,7 +113,8 @@ class JointObjective:
 
     def __init__(self, start: MembraneParameters, static: StaticData | None, steps: Sequence[StepData],
                  points: Sequence[FrequencyPoint], static_sigma_m: float, step_sigmas_m, point_sigmas_m,
-                 prior_beta_gamma=None, fit_curvature: bool = True, n_harmonics: int = 8):
+                 prior_beta_gamma=None, fit_curvature: bool = True, n_harmonics: int = 8,
+                 fit_slope: bool = True):
         self.start = start
         self.static = static
         self.steps = list(steps)
@@ -129,10 +130,11 @@ class JointObjective:
         self.rep = OgdenRepresentation(start.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
         self.fit_curvature = fit_curvature
         self.combos0 = EXTENDED_COMBINATION_MATRIX @ start_bg
+        first = [0, 1] if fit_slope else [0]       # sigma_h'(1) held when the static data cannot see it
         if fit_curvature == "third":       # sigma_h''(1) held at the start's value, sigma_h'''(1) free
-            self.stress_index = [0, 1, 3]
+            self.stress_index = first + [3]
         else:
-            self.stress_index = [0, 1, 2, 3] if fit_curvature else [0, 1]
+            self.stress_index = first + ([2, 3] if fit_curvature else [])
         self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
         gain = self.rep.gain                                         # (6, 4)
         self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
@@ -270,6 +272,7 @@ def fit_joint(
     noise_m: float | None = None,
     prior_beta_gamma=None,
     fit_curvature: bool = True,
+    fit_slope: bool = True,
     curvature_fallback_Pa: float | None = None,
     n_harmonics: int = 8,
     max_evaluations: int = 60,
@@ -296,7 +299,7 @@ def fit_joint(
     if not points:
         fit_curvature = False
     objective = JointObjective(start, static, steps, points, static_sigma_m, step_s, point_s,
-                               prior_beta_gamma, fit_curvature, n_harmonics)
+                               prior_beta_gamma, fit_curvature, n_harmonics, fit_slope)
     lo, hi = objective.bounds()
 
     def run(obj, x0):
@@ -322,7 +325,7 @@ def fit_joint(
             point_s = [s if p.measured_std_m is None else p.measured_std_m for s, p in
                        zip([sig] * n_f, points)]
             objective = JointObjective(objective.parameters(sol.x), static, steps, points, static_sigma_m,
-                                       step_s, point_s, prior_beta_gamma, fit_curvature, n_harmonics)
+                                       step_s, point_s, prior_beta_gamma, fit_curvature, n_harmonics, fit_slope)
             sol = run(objective, objective.theta0())
             warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
                             f"scatter about the fit, {sig * 1e6:.3g} um")

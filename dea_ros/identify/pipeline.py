@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy import stats as scipy_stats
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
@@ -300,13 +301,20 @@ def _kinds(classification: list) -> list:
 
 
 def _static_sigma(static: StaticFitResult | None) -> float:
+    """Weight of the static points in the joint chi-square: the static fit's residual standard
+    deviation s, times t_0.975(dof) / z_0.975 -- s comes from few points (e.g. 9 degrees of freedom),
+    and the joint intervals, which use the quantile of the joint fit's many degrees of freedom,
+    would otherwise be too narrow for the parameters the static points determine (sigma_h(1))."""
     if static is None:
         return 1.0
     st = static.statistics
     s = float(st.residual_std) if st is not None and math.isfinite(st.residual_std) else float("nan")
+    dof = int(st.dof) if st is not None else 0
     if not (math.isfinite(s) and s > 0):
         r = static.residuals_m
         s = float(np.sqrt(np.mean(r**2))) if r.size else 1e-7
+    if dof >= 1:
+        s *= float(scipy_stats.t.ppf(0.975, dof) / scipy_stats.norm.ppf(0.975))
     return max(s, 1e-9)
 
 
@@ -689,7 +697,7 @@ def identify(
                 warnings += [w for w in dynamic.warnings if w not in warnings]
                 classification = classify_records(params, experiments, n_harmonics, noise)
         timings["classification"] = time.perf_counter() - t0
-        if refine == "joint" and static is not None and static.method == "lsq" and stress_terms == 2:
+        if refine == "joint" and static is not None and static.method == "lsq":
             t0 = time.perf_counter()
             fallback = _curvature_fallback(static, params)
             fit_c = (fit_curvature is not False) and bool(experiments.sines)
@@ -699,6 +707,7 @@ def identify(
                     joint = fit_joint(params, experiments.all_static(), experiments.steps, pts,
                                       _static_sigma(static), noise_m=noise,
                                       prior_beta_gamma=static.prior_beta_gamma, fit_curvature=fit_c,
+                                      fit_slope=stress_terms >= 2,
                                       curvature_fallback_Pa=float(EXTENDED_COMBINATION_MATRIX[2] @ fallback),
                                       n_harmonics=n_harmonics, progress=progress)
                 except JointFitError as exc:
@@ -745,12 +754,14 @@ def identify(
                         held = fit_joint(_with_base_curvature(params, fallback), experiments.all_static(),
                                          experiments.steps, pts_now, _static_sigma(static), noise_m=noise,
                                          prior_beta_gamma=static.prior_beta_gamma, fit_curvature=False,
+                                         fit_slope=stress_terms >= 2,
                                          curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics, progress=progress)
                         how = "both curvature terms at the base values"
                         if held.cost - chi_free > 9.0:
                             held = fit_joint(start, experiments.all_static(), experiments.steps, pts_now,
                                              _static_sigma(static), noise_m=noise,
                                              prior_beta_gamma=static.prior_beta_gamma, fit_curvature="third",
+                                             fit_slope=stress_terms >= 2,
                                              curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics,
                                              progress=progress)
                             how = "sigma_h''(1) at the base value, sigma_h'''(1) refitted (the data reject both at base)"
@@ -778,8 +789,8 @@ def identify(
                     curvature_identified = None
         elif experiments.sines:
             if refine == "joint":
-                warnings.append("joint refinement skipped: it needs the least-squares static fit with sigma_h(1) and "
-                                "sigma_h'(1) (static_method='lsq', stress_terms=2); the two-stage result is reported")
+                warnings.append("joint refinement skipped: it needs the least-squares static fit (static_method='lsq'); "
+                                "the two-stage result is reported")
             if not dynamic.curvature_fitted:
                 curvature_identified, curvature_status = False, "not identified"
                 warnings.append(
