@@ -101,7 +101,8 @@ def run(kind: str, seeds) -> list[str]:
                 f"{np.median(pf):.3g} % / {np.median(pa):.3g} % | - |")
     rows.append(f"| {kind} ({len(freqs)} freq.) | sigma_h''(1) identified (written) | "
                 f"{sum(curv_ok)} / {len(curv_ok)} seeds | | - |")
-    rows.append(f"| {kind} ({len(freqs)} freq.) | identification time | {max(times):.1f} s | {np.median(times):.1f} s | - |")
+    rows.append(f"| {kind} ({len(freqs)} freq.) | identification time | {max(times):.1f} s | "
+                f"{np.median(times):.1f} s | - |")
     return rows
 
 

@@ -84,7 +84,8 @@ def band_rows(name: str, quick: bool) -> list[str]:
                                rtol=1e-9, atol_scale=1e-9).displacement_m
                 ref = float(np.sqrt(np.mean((sim - d0) ** 2)))
                 err = 100 * (r.d_rms_m / ref - 1)
-                cells.append(f"{f:g} Hz: {r.d_rms_m * 1e6:.1f} um [{r.d_rms_min_m * 1e6:.0f}-{r.d_rms_max_m * 1e6:.0f}] "
+                cells.append(f"{f:g} Hz: {r.d_rms_m * 1e6:.1f} um "
+                             f"[{r.d_rms_min_m * 1e6:.0f}-{r.d_rms_max_m * 1e6:.0f}] "
                              f"vs DOP853 {n_win} periods {ref * 1e6:.1f} um ({err:+.1f} %)")
                 continue
             pts = [pt for br in res.branches for pt in br.points

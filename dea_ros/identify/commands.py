@@ -31,11 +31,13 @@ def _progress_printer(stream):
         stage = event.get("stage", "?")
         if stage == "dynamic":
             msg = (f"[dynamic] evaluation {event['evaluation']:3d}: J = {event['cost']:.6g}  k1 = "
-                   f"{event['k1_Pa']:.4g} Pa  eta1 = {event['eta1_Pa_s']:.4g} Pa s  eta2 = {event['eta2_Pa_s']:.4g} Pa s")
+                   f"{event['k1_Pa']:.4g} Pa  eta1 = {event['eta1_Pa_s']:.4g} Pa s  "
+                   f"eta2 = {event['eta2_Pa_s']:.4g} Pa s")
         elif stage == "static":
             extra = f" start {event['start']}" if "start" in event else ""
             rms = f", RMS {event['rms_um']:.3g} um" if "rms_um" in event else ""
-            msg = f"[static] {event.get('method')}{extra}: cost {event.get('cost', float('nan')):.6g}{rms} ({event.get('evaluations')} evaluations)"
+            msg = (f"[static] {event.get('method')}{extra}: cost {event.get('cost', float('nan')):.6g}{rms} "
+                   f"({event.get('evaluations')} evaluations)")
         elif stage == "synth":
             what = event.get("what")
             msg = f"[synth] {what}" + \
@@ -173,7 +175,7 @@ def cmd_identify(args) -> int:
             _check_membrane(args.membrane)
         if args.fit_frequencies:
             fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
-                                                                                   args.fit_frequencies)
+                                                                                  args.fit_frequencies)
     except _UsageError as exc:
         return _error("identify", exc)
     data_path = Path(args.data)

@@ -980,7 +980,8 @@ def write_experiment_set(experiments: ExperimentSet, folder: str | Path) -> Path
         write_csv_columns(folder / name, cols,
                           comment="frequency response: RMS of d - d0 over whole periods (eq. 21, interpolated "
                                   "period boundaries, laser noise removed); d_rms_std_m: its standard uncertainty "
-                                  f"(optional); excitation u = {'|U sin(2 pi f t)|' if s.waveform == 'abs_sine' else 'U sin(2 pi f t)'}"
+                                  "(optional); excitation u = "
+                                  f"{'|U sin(2 pi f t)|' if s.waveform == 'abs_sine' else 'U sin(2 pi f t)'}"
                                   ", U = amplitude_V")
         entry: dict[str, Any] = {"kind": "sine", "file": name, "waveform": s.waveform}
         if s.mass_kg != experiments.mass_kg:

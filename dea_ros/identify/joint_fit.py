@@ -31,7 +31,8 @@ alone moves the response near the peak by 40 standard deviations, so it is fitte
 curvature (a nuisance parameter: the intervals of the others allow for it). sigma_h''(1) is
 reported as identified when its 95 % interval is within +-``curvature_rel_ci_limit`` (50 %) of
 its value; otherwise the result says so (``curvature_identified`` False) and the caller decides
-(the pipeline writes it flagged "poorly determined" while its sign is known, else the base value). The four combinations are matched exactly by the (beta, gamma) closest to the
+(the pipeline writes it flagged "poorly determined" while its sign is known, else the base value).
+The four combinations are matched exactly by the (beta, gamma) closest to the
 base parameters' (or, without them, to the start's), as in the static fit's representation.
 """
 from __future__ import annotations
@@ -162,7 +163,6 @@ class JointObjective:
                                   eta2_Pa_s=float(eta2))
 
     def bounds(self):
-        q = len(self.stress_index)
         b = np.array([_STRESS_BOUND[i] / _UNITS[i] for i in self.stress_index])
         lo = np.r_[-b, 1.0, np.log([b_[0] for b_ in PARAMETER_BOUNDS.values()])]
         hi = np.r_[b, 50.0, np.log([b_[1] for b_ in PARAMETER_BOUNDS.values()])]

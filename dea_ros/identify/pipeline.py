@@ -540,7 +540,8 @@ def _marginal_statistics(held, free):
             continue
         rel[i] = free.relative_ci[j]
         se[i] = max(se[i], free.std_error[j] * abs(vals[i] / free.values[j]) if free.values[j] else free.std_error[j])
-        if free.ci_low[j] > 0 and abs(np.log(free.ci_high[j] / free.values[j]) + np.log(free.ci_low[j] / free.values[j])) < 1e-9:
+        if free.ci_low[j] > 0 and abs(np.log(free.ci_high[j] / free.values[j])
+                                      + np.log(free.ci_low[j] / free.values[j])) < 1e-9:
             f_hi = free.ci_high[j] / free.values[j]           # a log parameter: multiplicative interval
             lo[i], hi[i] = vals[i] / f_hi, vals[i] * f_hi
         else:
@@ -608,7 +609,7 @@ def identify(
             warnings.append(
                 f"{data.source}: only {loaded} static point(s) with a mass; fitting sigma_h(1) and eps_r only, "
                 "sigma_h'(1) is taken from the " + ("base parameters" if experiments.base_parameters is not None
-                                                      else "representation (eqs. 8-9)")
+                                                    else "representation (eqs. 8-9)")
                 + " -- add zero-voltage points at several masses to identify it"
             )
         static = fit_static(data, template, method=static_method,
@@ -687,7 +688,8 @@ def identify(
             if len(kept) < len(stage1_freqs) and direction is None and (kept or experiments.steps):
                 for f in sorted(set(stage1_freqs) - set(kept)):
                     warnings.append(f"{f:g} Hz: not periodic at T/2 for the model after stage 1 (a period-doubled or "
-                                    "quasi-periodic response): stage 1 repeated without it (eq. 24 assumes the T/2 orbit)")
+                                    "quasi-periodic response): stage 1 repeated without it "
+                                    "(eq. 24 assumes the T/2 orbit)")
                 redo = fit_dynamic(params if static is None else static.parameters, experiments.steps,
                                    experiments.sines if kept else [], fit_frequencies_Hz=kept if kept else None,
                                    start=experiments.base_parameters, **dyn_kw)
@@ -735,7 +737,8 @@ def identify(
                     elif rel < 1.0:
                         curvature_identified, curvature_status = True, "poorly determined"
                         warnings.append(
-                            f"sigma_h''(1) is poorly determined by these data (95 % interval +-{100 * rel:.0f} % of its "
+                            f"sigma_h''(1) is poorly determined by these data "
+                            f"(95 % interval +-{100 * rel:.0f} % of its "
                             "value, sign known): written as fitted, flagged in params.yaml; records near the "
                             "resonance peak (large amplitude) would pin it down")
                     else:
@@ -764,7 +767,8 @@ def identify(
                                              fit_slope=stress_terms >= 2,
                                              curvature_fallback_Pa=base_c2, n_harmonics=n_harmonics,
                                              progress=progress)
-                            how = "sigma_h''(1) at the base value, sigma_h'''(1) refitted (the data reject both at base)"
+                            how = ("sigma_h''(1) at the base value, sigma_h'''(1) refitted "
+                                   "(the data reject both at base)")
                         written = held.parameters
                         held.statistics = _marginal_statistics(held.statistics, joint.statistics)
                         refit_note = (f" Written with {how}: chi-square {held.cost - chi_free:+.3g} against the free "
@@ -789,7 +793,8 @@ def identify(
                     curvature_identified = None
         elif experiments.sines:
             if refine == "joint":
-                warnings.append("joint refinement skipped: it needs the least-squares static fit (static_method='lsq'); "
+                warnings.append("joint refinement skipped: it needs the least-squares static fit "
+                                "(static_method='lsq'); "
                                 "the two-stage result is reported")
             if not dynamic.curvature_fitted:
                 curvature_identified, curvature_status = False, "not identified"

@@ -52,7 +52,8 @@ def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
         lines.append("identified: sigma_h(1), its slope and eps_r (and the curvature where the 'identification' "
                      "section says so); beta/gamma are one representative, not individually identifiable")
     if result.curvature_identified is False:
-        lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry the base value (see 'identification')")
+        lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry the base value "
+                     "(see 'identification')")
     text = "\n".join(f"# {line}" for line in lines) + "\n"
     data = {"membrane": result.parameters.to_dict(), "identification": _plain(result.identification_metadata())}
     text += yaml.safe_dump(data, sort_keys=False)
@@ -184,9 +185,11 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
         for kind, (marker, col) in KIND_MARKERS.items():
             sel = used == kind
             if np.any(sel):
-                ax.plot(sine.frequency_Hz[sel], sine.d_rms_m[sel] * 1e3, marker, color="k" if kind != "left out" else col,
+                ax.plot(sine.frequency_Hz[sel], sine.d_rms_m[sel] * 1e3, marker,
+                        color="k" if kind != "left out" else col,
                         mfc="none" if kind != "periodic" else "k", ms=6,
-                        label=f"data, fitted as {kind}" if kind != "left out" else "data, left out (no periodic response)")
+                        label=(f"data, fitted as {kind}" if kind != "left out"
+                               else "data, left out (no periodic response)"))
     for entry in result.evaluation.get("frequency_response", []):
         for res in entry.get("resonance", []):
             if res.get("measured"):
@@ -327,7 +330,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
     if result.curvature_identified:
         c2 = linear_combination_ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0})
         flag = "" if result.curvature_status == "identified" else f" ({result.curvature_status})"
-        out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | {_fmt(curvature * 1e-3)}{flag} | "
+        out.append("| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | "
+                   f"{_fmt(curvature * 1e-3)}{flag} | "
                    "kPa | " + " | ".join(_ci_cells(c2, 1e-3)) + " |")
     else:
         out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | **not identified** (base value "
@@ -364,7 +368,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
                    "(the data kind from the sampled record where one exists; the model kind from the realised response "
                    "of the fitted model in a slow upward sweep).")
         out.append("")
-        out.append("| f [Hz] | measured d_rms [um] | data | model | fitted as | model d_rms [um] | (model - data) / sigma |")
+        out.append("| f [Hz] | measured d_rms [um] | data | model | fitted as | model d_rms [um] "
+                   "| (model - data) / sigma |")
         out.append("|---|---|---|---|---|---|---|")
         ev_fr = {e["source"]: e for e in result.evaluation.get("frequency_response", [])}
         curves = {id(c["sine"]): c for c in result.curves.get("sines", [])}
@@ -377,7 +382,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
                 z = f"{(model - c['measured_rms_m']) / sine.d_rms_std_m[c['index']]:+.2f}"
             used = c["used"] if c["used"] != "left out" else f"left out: {c.get('reason', '')}"
             out.append(f"| {c['frequency_Hz']:g} | {c['measured_rms_m'] * 1e6:.4g} | {c.get('data_kind') or '-'} | "
-                       f"{c.get('model_kind') or '-'} | {used} | {_fmt(model * 1e6) if np.isfinite(model) else '-'} | {z} |")
+                       f"{c.get('model_kind') or '-'} | {used} | "
+                       f"{_fmt(model * 1e6) if np.isfinite(model) else '-'} | {z} |")
         _ = ev_fr
         out.append("")
     # ---- metrics
@@ -444,15 +450,17 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             out.append("|---|---|")
             for s_ in st.starts:
                 out.append(f"| {s_.get('start')} | " + ", ".join(f"{k} = {_fmt(v)}" for k, v in s_.items()
-                                                              if k != "start") + " |")
+                                                                 if k != "start") + " |")
         out.append("")
         out.append(_stats_table(st.statistics))
     if dy is not None:
         out.append("## Dynamic fit, stage 1 (eqs. 22-24)" if jt is not None else "## Dynamic fit (eqs. 22-24)")
         out.append("")
         pts = ", ".join(f"{f:g}" for f in dy.fit_frequencies_Hz)
-        out.append(f"Method `{dy.method}`, frequency response by `{dy.frequency_method}`; fit frequencies {pts or 'none'} Hz; "
-                   f"cost J (eq. 22) = {_fmt(dy.cost)} (step {_fmt(dy.step_cost)}, frequency {_fmt(dy.frequency_cost)}); "
+        out.append(f"Method `{dy.method}`, frequency response by `{dy.frequency_method}`; "
+                   f"fit frequencies {pts or 'none'} Hz; "
+                   f"cost J (eq. 22) = {_fmt(dy.cost)} (step {_fmt(dy.step_cost)}, "
+                   f"frequency {_fmt(dy.frequency_cost)}); "
                    f"{dy.n_evaluations} evaluations ({dy.n_jacobians} with Jacobian).")
         init = dy.initial
         out.append("")

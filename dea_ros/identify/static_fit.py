@@ -317,7 +317,7 @@ def _check_static_data(data: StaticData, n_params: int) -> None:
             "several voltages with a mass (the paper uses 2.0-2.5 kV at 3 g)"
         )
     states = {(round(float(m), 12), round(float(u) ** 2, 3))
-               for m, u in zip(data.mass_kg[loaded], data.voltage_V[loaded])}
+              for m, u in zip(data.mass_kg[loaded], data.voltage_V[loaded])}
     if len(states) < n_params:
         raise StaticFitError(
             f"{data.source}: only {len(states)} distinct (mass, voltage) state(s) with a mass; "
