@@ -28,6 +28,16 @@ SLEW = 20000.0
 MAX = 2430.0  # A1: 0.9 x 100 V/um x 27 um
 
 
+def reactivation_refused(amp) -> bool:
+    """A latched fault leaves the node in 'active' with 0 V; deactivate + activate must then fail.
+
+    (Activating straight from 'active' is not a registered transition: Humble/Jazzy rclpy raise RCLError
+    there while newer rclpy returns an error code, so the test goes through 'inactive' as a user would.)
+    """
+    assert amp.trigger_deactivate() == TransitionCallbackReturn.SUCCESS
+    return amp.trigger_activate() == TransitionCallbackReturn.FAILURE
+
+
 def make_amp(ctx, **extra):
     params = dict(params_file="A1", backend="inprocess", slew_rate_V_per_s=SLEW,
                   ramp_down_rate_V_per_s=10000.0, watchdog_timeout_s=0.2, update_rate_hz=500.0)
@@ -205,7 +215,7 @@ def test_exception_in_a_callback_is_a_latched_fault_that_ramps_to_zero(ros_conte
     assert history[-1] == 0.0 and not backend.is_open
     tail = np.array(history[history.index(2000.0):])
     assert np.all(np.diff(tail) <= 0.0) and len(tail) > 10  # a ramp, not a jump
-    assert amp.trigger_activate() != TransitionCallbackReturn.SUCCESS  # latched
+    assert reactivation_refused(amp)  # latched
     ex.shutdown()
     amp.destroy_node()
     peer.destroy_node()
@@ -310,7 +320,7 @@ def test_monitor_mismatch_or_loss_is_a_fault_that_disables_the_output(ros_contex
     assert spin_until(ex, lambda: pub.publish(Float64(data=1000.0)) or amp.fault_reason is not None, 5.0)
     assert "monitor" in amp.fault_reason
     assert not board.amplifier_enabled and board.ao_values[0] == 0.0 and board.amplifier_output_V == 0.0
-    assert amp.trigger_activate() != TransitionCallbackReturn.SUCCESS  # latched until cleanup + configure
+    assert reactivation_refused(amp)  # latched until cleanup + configure
     ex.shutdown()
     amp.destroy_node()
     peer.destroy_node()
