@@ -20,6 +20,7 @@ README's topic table, that data flows through the mock rig (amplifier over UDP, 
 emulated serial port), and that every node stops cleanly on SIGINT. A negative control removes
 ``dea_ros/hardware`` from a copy of the install and shows that the amplifier then cannot start.
 """
+import importlib.util
 import json
 import os
 import re
@@ -684,11 +685,22 @@ def test_without_the_hardware_package_the_isolated_amplifier_cannot_start(instal
     """Negative control: the environment above cannot fall back on the source tree or the development install.
 
     The install as find_packages makes it when dea_ros/hardware/__init__.py is missing (no dea_ros/hardware):
-    the amplifier started exactly as above must fail to import it.
+    importing it in the isolated environment must fail, while the real install imports it; where rclpy is
+    installed, the amplifier started exactly as above must fail too.
     """
     broken = tmp_path / "install" / "dea_ros"
     shutil.copytree(install, broken, symlinks=True)
     shutil.rmtree(install_site(broken) / "dea_ros" / "hardware", ignore_errors=True)
+    probe = [sys.executable, "-S", "-c", "import dea_ros.hardware, sys; print(dea_ros.hardware.__file__)"]
+    good = subprocess.run(probe, cwd=tmp_path, env=isolated_env(install), capture_output=True, text=True,
+                          timeout=60, stdin=subprocess.DEVNULL)
+    assert good.returncode == 0, good.stderr
+    assert Path(good.stdout.strip()).is_relative_to(install_site(install))
+    bad = subprocess.run(probe, cwd=tmp_path, env=isolated_env(broken), capture_output=True, text=True,
+                         timeout=60, stdin=subprocess.DEVNULL)
+    assert bad.returncode != 0 and "No module named 'dea_ros.hardware'" in bad.stderr, bad.stderr
+    if importlib.util.find_spec("rclpy") is None:
+        return  # a stack without ROS 2 (CI's humble): the node itself cannot start either way
     out = subprocess.run(node_command(broken, "amplifier_node",
                                       broken / "share" / "dea_ros" / "config" / "amplifier.yaml"),
                          cwd=tmp_path, env=isolated_env(broken), capture_output=True, text=True, timeout=60,
