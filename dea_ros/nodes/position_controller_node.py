@@ -251,11 +251,13 @@ class PositionControllerNode(LifecycleNode):
     def _refuse(self, what: str, exc: Exception) -> None:
         self.refused += 1
         self.last_refusal = f"{what}: {exc}"
-        self.get_logger().error(f"refused {what}: {exc}")
+        # throttled: a robot streaming references at 100 Hz must not flood the log (every refusal is
+        # counted and the last one is on /diagnostics)
+        self.get_logger().error(f"refused {what}: {exc}", throttle_duration_sec=1.0)
 
     def _accept(self, text: str) -> None:
         self.last_accept = text
-        self.get_logger().info(text)
+        self.get_logger().info(text, throttle_duration_sec=1.0)  # the last one is on /diagnostics
 
     def on_setpoint(self, msg: Float64) -> None:
         if not self.active or self.ctl is None:

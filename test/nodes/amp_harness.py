@@ -13,6 +13,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -79,7 +80,21 @@ def start_amplifier(port, namespace, sim_time=False, **params):
         cmd += ["-p", f"{key}:={value}"]
     if sim_time:
         cmd += ["-p", "use_sim_time:=true"]
-    return subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return spawn_logged(cmd)
+
+
+def spawn_logged(cmd) -> subprocess.Popen:
+    """A node process whose log goes to a file (a pipe nobody reads blocks the node once 64 KiB are logged)."""
+    log = tempfile.TemporaryFile(mode="w+")
+    proc = subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=log, text=True)
+    proc.log = log
+    return proc
+
+
+def stderr_of(proc) -> str:
+    """What the node process has logged so far."""
+    proc.log.seek(0)
+    return proc.log.read()
 
 
 def stop(proc, sig=signal.SIGINT, timeout_s=15.0):

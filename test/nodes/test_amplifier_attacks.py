@@ -95,10 +95,7 @@ def _membrane_file(path, **changes):
 
 
 def _stderr(proc):
-    try:
-        return proc.stderr.read() if proc.poll() is not None else ""
-    except Exception:  # noqa: BLE001
-        return ""
+    return H.stderr_of(proc)
 
 
 def test_parameter_and_lifecycle_attacks_cannot_raise_the_voltage(ros_context, capture, tmp_path):
@@ -349,7 +346,8 @@ def test_console_script_refuses_a_configuration_slip_with_exit_code_2(tmp_path):
     membrane = _membrane_file(tmp_path / "thick.yaml", thickness_m=2.7e-4, breakdown_field_V_per_m=1e8)
     proc = H.start_amplifier(1, "/atk_cli", params_file=str(membrane))
     try:
-        _, err = proc.communicate(timeout=60)
+        proc.wait(timeout=60)
+        err = H.stderr_of(proc)
     finally:
         proc.kill()
     assert proc.returncode == 2, err

@@ -1,9 +1,10 @@
 """position_controller_node over real rclpy: the node in its own process (installed config, a namespace),
 the plant, the amplifier and the lifecycle manager in this one."""
-import os
+import importlib.util
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,6 +26,10 @@ from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range
 from dea_ros.nodes.position_controller_node import PositionControllerNode
 from dea_ros.solvers.integrate import RealTimeStepper
 
+_spec = importlib.util.spec_from_file_location("amp_harness", Path(__file__).parent / "amp_harness.py")
+H = importlib.util.module_from_spec(_spec)  # spawn_logged / stderr_of: node processes logging to files
+_spec.loader.exec_module(H)
+
 CONFIG = config_dir() / "position_controller.yaml"
 TRUTH = config_dir() / "rig" / "mock_membrane.yaml"      # the plant: not the controller's model (A2)
 U_MAX = 0.9 * 100e6 * 35e-6                              # A2: margin x breakdown x thickness
@@ -37,7 +42,7 @@ def start_controller(ns, *extra, autostart=True):
            "--params-file", str(CONFIG), "-p", "params_file:=A2", "-p", f"autostart:={str(autostart).lower()}"]
     for e in extra:
         cmd += ["-p", e]
-    return subprocess.Popen(cmd, env=dict(os.environ), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    return H.spawn_logged(cmd)
 
 
 def stop(proc):
@@ -98,7 +103,7 @@ def test_setpoints_and_trajectories_drive_the_plant_within_the_amplifier_limits(
             lambda m: stamped.append((m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, m.voltage)), SENSOR_QOS)
         node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
         assert spin_until(ex, lambda: plant.pub.get_subscription_count() > 0 and
-                          node.count_publishers(f"{ns}/voltage_cmd") > 0, timeout_s=30.0), proc.stderr
+                          node.count_publishers(f"{ns}/voltage_cmd") > 0, timeout_s=30.0), H.stderr_of(proc)
         # the node answers the first sample once its subscription matched (best effort may drop early ones)
         assert spin_until(ex, lambda: plant.sample(ex, spin_until, timeout_s=0.2), timeout_s=20.0)
         for _ in range(50):

@@ -31,8 +31,8 @@ ODD_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=Durabili
 class TwoSensorRig(Node):
     """Applied voltage from one publisher; displacement from two, with different QoS."""
 
-    def __init__(self, context):
-        super().__init__("two_sensor_rig", context=context)
+    def __init__(self, context, namespace):
+        super().__init__("two_sensor_rig", context=context, namespace=namespace)
         self.v_pub = self.create_publisher(BatteryState, "voltage", SENSOR_QOS)
         self.d_pubs = [self.create_publisher(Range, "displacement", SENSOR_QOS),
                        self.create_publisher(Range, "displacement", ODD_QOS)]
@@ -47,22 +47,24 @@ class TwoSensorRig(Node):
                 pub.publish(make_range(7e-4, t, "laser"))
 
 
-def _identifier(ctx, tmp_path, fmt):
+def _identifier(ctx, tmp_path, fmt, namespace="/"):
     params = dict(protocol="quick", output_dir=str(tmp_path), run_name="run", identify=False,
                   command_rate_hz=100.0, wait_for_rig_s=10.0, rosbag2_format=fmt)
-    return IdentifierNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    return IdentifierNode(context=ctx, namespace=namespace,
+                          parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
 
 
 @pytest.mark.parametrize("fmt, version", [("humble", 5), ("jazzy", 9)])
 def test_bag_holds_each_discovered_publishers_qos(ros_context, spin_until, tmp_path, fmt, version):
-    rig = TwoSensorRig(ros_context)
-    node = _identifier(ros_context, tmp_path, fmt)
+    ns = f"/qos_{fmt}"  # its own namespace: publishers of other tests on this graph cannot be counted in
+    rig = TwoSensorRig(ros_context, ns)
+    node = _identifier(ros_context, tmp_path, fmt, ns)
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(rig)
     ex.add_node(node)
     try:
-        assert spin_until(ex, lambda: node.count_publishers("/displacement") == 2
-                          and node.count_publishers("/voltage") == 1, timeout_s=10.0)
+        assert spin_until(ex, lambda: node.count_publishers(f"{ns}/displacement") == 2
+                          and node.count_publishers(f"{ns}/voltage") == 1, timeout_s=10.0)
         rig.publishing = True
         assert spin_until(ex, lambda: node.state == "running", timeout_s=10.0)
         spin_until(ex, lambda: False, timeout_s=0.3)
@@ -74,20 +76,21 @@ def test_bag_holds_each_discovered_publishers_qos(ros_context, spin_until, tmp_p
     bag = tmp_path / "run" / "bag"
     with BagReader(bag) as reader:
         topics = reader.topics()
-    displacement = topics["/displacement"].qos_profiles
+    displacement = topics[f"{ns}/displacement"].qos_profiles
     assert len(displacement) == 2  # one per publisher, not the package's constant
     by_reliability = {p.reliability: p for p in displacement}
     assert set(by_reliability) == {"best_effort", "reliable"}
     odd = by_reliability["reliable"]
     assert odd.durability == "transient_local" and tuple(odd.deadline) == (2, 500)
     assert by_reliability["best_effort"].durability == "volatile"
-    assert [p.reliability for p in topics["/voltage"].qos_profiles] == ["best_effort"]
-    assert [(p.reliability, p.durability) for p in topics["/voltage_cmd"].qos_profiles] == [("reliable", "volatile")]
-    assert "/displacement_predicted" not in topics  # never published: not recorded, as rosbag2
+    assert [p.reliability for p in topics[f"{ns}/voltage"].qos_profiles] == ["best_effort"]
+    assert [(p.reliability, p.durability) for p in topics[f"{ns}/voltage_cmd"].qos_profiles] == [
+        ("reliable", "volatile")]
+    assert f"{ns}/displacement_predicted" not in topics  # never published: not recorded, as rosbag2
     for distro in ("humble", "jazzy") if fmt == "humble" else ("jazzy",):
         info = rules.check_bag(bag, distro)
         assert info["version"] == version
-        assert len(info["topics"]["/displacement"]["qos"]) == 2
+        assert len(info["topics"][f"{ns}/displacement"]["qos"]) == 2
 
 
 def test_bad_rosbag2_format_stops_with_the_parameter_named(ros_context, tmp_path):
