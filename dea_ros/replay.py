@@ -45,11 +45,7 @@ def playback_qos(profiles):
 def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_offset_s: float = 0.0,
            publish_clock: bool = False, quiet: bool = False, max_loops: int | None = None,
            max_gap_s: float = 10.0, delay_s: float = 0.5) -> int:
-    """Republish; returns the number of messages published."""
-    import rclpy
-    from rclpy.node import Node
-    from rosgraph_msgs.msg import Clock
-
+    """Republish; returns the number of messages published (the bag and options are checked first)."""
     from .bag import BagReader
 
     if not rate > 0:
@@ -63,6 +59,13 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
         # the first real log time (a message logged with time 0, e.g. before a simulated clock
         # started, would otherwise make the replay wait decades)
         t_first = next((m.log_time_ns for m in bag.raw_messages(wanted) if m.log_time_ns > 0), 0)
+    try:
+        import rclpy
+        from rclpy.node import Node
+        from rosgraph_msgs.msg import Clock
+    except ImportError as exc:  # a valid bag, but no ROS 2 in this environment: a set-up error (exit 2)
+        raise ValueError(f"replay publishes on ROS 2 and needs rclpy ({exc}): source /opt/ros/<distro>/setup.bash "
+                         "(or use the venv of scripts/setup_env.sh, which has the ROS 2 wheels)") from None
     rclpy.init()
     node = Node("dea_ros_replay")
     pubs = {t: node.create_publisher(message_class(info[t].type), t, playback_qos(info[t].qos_profiles))

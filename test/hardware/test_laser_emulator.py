@@ -327,7 +327,9 @@ def test_disconnect_detected_after_pause_and_recovers_when_data_resumes(sensor, 
     matched = records[offset : offset + len(resumed)]
     assert values_match(resumed, matched)
     errors = [abs(r.acquisition_time_s - rec.acquisition_time_s) for r, rec in zip(resumed, matched)]
-    assert statistics.median(errors) < 1e-3 and max(errors) < 20e-3  # the 0.5 s gap is accounted for
+    # the 0.5 s gap is accounted for (unaccounted, every error would be >= 0.5 s); the median allows the
+    # scheduling jitter of a loaded 2-core CI machine (2.2 ms measured there)
+    assert statistics.median(errors) < 5e-3 and max(errors) < 20e-3
     assert emulator.samples_lost_paused >= 900
 
 
