@@ -78,7 +78,7 @@ def test_voltage_step_on_the_mock_rig_matches_the_model(ros_context, spin_until)
     window &= (tp[k] - tp[k - 1]) < 2.5e-3
     # (model_node publishes a prediction per applied voltage: their density follows the amplifier's
     # update rate, which a loaded machine lowers; a few hundred aligned samples judge the RMS well)
-    assert window.sum() > 200, f"only {window.sum()} measurements between two close predictions"
+    assert window.sum() >= 150, f"only {window.sum()} measurements between two close predictions"
     err = dm[window] - np.interp(tm[window], tp, dp)
     rest = static_equilibrium(preset("A1"), 0.0).displacement_m
     assert dm.max() > rest + 50e-6  # the step moved the mass
