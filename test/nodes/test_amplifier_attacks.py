@@ -94,10 +94,6 @@ def _membrane_file(path, **changes):
     return path
 
 
-def _stderr(proc):
-    return H.stderr_of(proc)
-
-
 def test_parameter_and_lifecycle_attacks_cannot_raise_the_voltage(ros_context, capture, tmp_path):
     """Issue 9's reproduction: max_voltage_V=30000, margin=1, slew 1e7, ramp 1 V/s, watchdog 60 s,
     params_file -> a 1 mm membrane, use_sim_time, then deactivate/cleanup/configure/activate from
@@ -109,7 +105,7 @@ def test_parameter_and_lifecycle_attacks_cannot_raise_the_voltage(ros_context, c
     attacker = Attacker(ros_context, "/atk_param")
     try:
         assert attacker.command_for(3000.0, until=lambda: capture.last_V() == 3000.0, timeout_s=H.READY_TIMEOUT_S), \
-            _stderr(proc)
+            H.stderr_of(proc)
         attacks = [("max_voltage_V", 30000.0), ("margin", 1.0), ("slew_rate_V_per_s", 1e7),
                    ("ramp_down_rate_V_per_s", 1.0), ("watchdog_timeout_s", 60.0), ("params_file", str(thick)),
                    ("backend", "inprocess"), ("use_sim_time", True), ("amplifier_gain_V_per_V", 100.0),
@@ -159,7 +155,7 @@ def test_every_catchable_signal_ramps_to_zero_before_exit(ros_context):
             for attacker in attackers.values():
                 attacker.command_for(2000.0, duration_s=0.01)
         for sig in signals:
-            assert captures[sig].last_V() == 2000.0, (sig.name, _stderr(procs[sig]))
+            assert captures[sig].last_V() == 2000.0, (sig.name, H.stderr_of(procs[sig]))
         for sig in signals:
             procs[sig].send_signal(sig)
         for sig in signals:
@@ -171,7 +167,7 @@ def test_every_catchable_signal_ramps_to_zero_before_exit(ros_context):
             H.stop(proc, signal.SIGKILL)
     time.sleep(0.1)
     for sig in signals:
-        assert procs[sig].returncode == 0, (sig.name, _stderr(procs[sig]))
+        assert procs[sig].returncode == 0, (sig.name, H.stderr_of(procs[sig]))
         data = captures[sig].snapshot()
         captures[sig].close()
         values = [d.voltage_V for d in data]
@@ -189,7 +185,7 @@ def test_sigkill_the_mock_amplifier_drops_to_zero_by_itself(ros_context):
     attacker = Attacker(ros_context, "/atk_kill")
     try:
         assert attacker.command_for(2000.0, until=lambda: cap.last_V() == 2000.0, timeout_s=H.READY_TIMEOUT_S), \
-            _stderr(proc)
+            H.stderr_of(proc)
         assert cap.receiver.applied_voltage_V() == 2000.0
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
@@ -242,14 +238,14 @@ def test_simulated_clock_jumps_move_the_output_one_update_at_most(ros_context, c
         t_end = time.monotonic() + H.READY_TIMEOUT_S
         while len(capture.voltages()) < 3 and time.monotonic() < t_end:  # the update follows the clock
             tick_and_command(PERIOD, 0.0)
-        assert len(capture.voltages()) >= 3, _stderr(proc)
+        assert len(capture.voltages()) >= 3, H.stderr_of(proc)
         for _ in range(50):  # normal ticks, then jumps while commanding 3 kV
             tick_and_command(PERIOD, 0.0)
         for dt in [0.4, 0.4, -100.0, 1e6, 0.4, PERIOD, 5.0, -0.4, 0.4] * 5:
             tick_and_command(dt, 3000.0)
         for _ in range(100):
             tick_and_command(PERIOD, 3000.0)
-        assert capture.last_V() > 0.0, _stderr(proc)
+        assert capture.last_V() > 0.0, H.stderr_of(proc)
         # the clock master dies: no /clock, no commands -> the backstop ramps to 0 V on the wall clock
         assert capture.wait_for(lambda c: c.last_V() == 0.0, timeout_s=15.0)
         H.check_safe(capture.snapshot(), CEILING, SLEW, sim_period_s=PERIOD)
@@ -284,7 +280,7 @@ def _fuzz(ros_context, capture, seed, sim_time):
         while capture.last_V() is None and time.monotonic() < t_end:
             clock_tick(PERIOD)
             attacker.ex.spin_once(timeout_sec=0.004)
-        assert capture.last_V() is not None, _stderr(proc)
+        assert capture.last_V() is not None, H.stderr_of(proc)
         assert attacker.set_params.wait_for_service(timeout_sec=10.0)
         assert attacker.change_state.wait_for_service(timeout_sec=10.0)
         # a deterministic start: high voltage
