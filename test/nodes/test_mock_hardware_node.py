@@ -16,7 +16,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64
 
-from dea_ros.control import ModelInverse
+from dea_ros.control import ModelInverse, loop_delays
 from dea_ros.model import config_dir, load_parameters
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, stamp_to_s
 from dea_ros.rig import RigProcesses  # the demo's process runner
@@ -31,26 +31,6 @@ def free_udp_port():
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def applied_delays_ticks(commands, applied, slew_V_per_s, window_ticks=20):
-    """Delays (ticks) from each command's sample to the amplifier update that applied exactly that value.
-
-    ``commands``: (sample stamp, V) of the controller (float32 on the wire, like the applied voltage);
-    ``applied``: (update stamp, V). An applied voltage counts only when the amplifier reached its target
-    (it moved by less than the slew limit since the previous update: a slew-limited value is no command)
-    and exactly one command within ``window_ticks`` before it has its value.
-    """
-    by_tick = {int(round(t / TICK_S)): u for t, u in commands}
-    out = {int(round(t / TICK_S)): u for t, u in applied}
-    delays = []
-    for j, u in sorted(out.items()):
-        if j - 1 not in out or abs(u - out[j - 1]) > 0.99 * slew_V_per_s * TICK_S:
-            continue
-        hits = [k for k in range(j - window_ticks, j + 1) if by_tick.get(k) == u]
-        if len(hits) == 1:
-            delays.append(j - hits[0])
-    return delays
 
 
 def test_applied_voltage_follows_each_sample_by_a_fixed_number_of_ticks(ros_context, spin_until):
@@ -107,8 +87,8 @@ def test_applied_voltage_follows_each_sample_by_a_fixed_number_of_ticks(ros_cont
     finally:
         rig.stop()
         node.destroy_node()
-    delays = applied_delays_ticks([c for c in commands if c[0] > t_set], [a for a in applied if a[0] > t_set],
-                                  SLEW_V_PER_S)
+    delays = loop_delays([c for c in commands if c[0] > t_set], [a for a in applied if a[0] > t_set], TICK_S,
+                         SLEW_V_PER_S)
     values, counts = np.unique(delays, return_counts=True)
     histogram = dict(zip(values.tolist(), counts.tolist()))
     assert len(delays) >= 200, f"only {len(delays)} applied voltages matched a command; {histogram}"
