@@ -291,13 +291,19 @@ class MockHardwareNode(Node):
         self.sim.advance_to(now)
         self.emit_samples(now, self.mono_to_ros)
 
+    def _tick_start_s(self) -> float:
+        """Earliest stamp that acknowledges the current tick: half a tick before it. Stamps travel as
+        integer ns and come back as float seconds since the epoch, where one rounding step is ~0.2 us:
+        an exact comparison would miss acknowledgements and wait for the timeout."""
+        return self.clock_time_s - 0.5 / self.clock_rate_hz
+
     def amplifier_behind(self) -> bool:
         """True while the amplifier's output for the current tick has not arrived."""
-        return self.amp_time_s is not None and self.amp_time_s < self.clock_time_s - 1e-9
+        return self.amp_time_s is not None and self.amp_time_s < self._tick_start_s()
 
     def participants_behind(self) -> str | None:
         """The first active lockstep participant that has not acknowledged the current tick, or None."""
-        t = self.clock_time_s - 1e-9
+        t = self._tick_start_s()
         now = time.monotonic()
         for topic, (stamp_s, wall_s) in self.ack_times.items():
             if stamp_s < t and now - wall_s < self.lockstep_timeout_s:
