@@ -114,8 +114,14 @@ class RigSimulator:
         with self.lock:
             self._advance_locked(t_s - self.t0_s)
 
+    #: times within this of a step boundary are on it (s): an epoch time in float64 (~1.8e9 s) carries
+    #: ~0.2 us of rounding, so t - t0 of a clock tick lands up to that far on either side of its step
+    BOUNDARY_TOLERANCE_S = 1e-6
+
     def _advance_locked(self, t_rel: float) -> None:
-        target = int(math.floor(t_rel / self.dt_s + 1e-6))  # whole steps up to t (step boundaries exact)
+        # whole steps up to t: a tick that rounds to just below its boundary must still reach it, or the
+        # laser reads the position half a step old and the next voltage starts half a step early
+        target = int(math.floor((t_rel + self.BOUNDARY_TOLERANCE_S) / self.dt_s))
         while self.steps < target:
             self.stepper.step(self.voltage_V)
             self.steps += 1
@@ -277,7 +283,7 @@ class MockHardwareNode(Node):
         if self.range_pub is None:
             return
         period = 1.0 / self.sample_rate_hz
-        while self.sample_t0 + self.next_sample_index * period <= t_end:
+        while self.sample_t0 + self.next_sample_index * period <= t_end + RigSimulator.BOUNDARY_TOLERANCE_S:
             t_acq = self.sample_t0 + self.next_sample_index * period
             self.next_sample_index += 1
             d = self.sim.measure(t_acq)

@@ -95,3 +95,21 @@ def test_applied_voltage_follows_each_sample_by_a_fixed_number_of_ticks(ros_cont
     assert mock_diag.get("lockstep_timeouts", "0") == "0", mock_diag
     # constant, and the delay the controller's model assumes (sample -> node -> amplifier's next update)
     assert histogram == {int(round(loop_delay_s / TICK_S)): len(delays)}, histogram
+
+
+def test_the_simulated_membrane_reaches_every_clock_tick_of_an_epoch_time_axis():
+    """Simulated time starts at the wall-clock date: t - t0 of a tick rounds ~0.2 us off its physics step.
+
+    Every tick must integrate exactly up to it (a step short: the laser reads the position half a step old
+    and the amplifier's next voltage starts half a step early, a random 0.5 ms timing error)."""
+    from dea_ros.model import preset
+    from dea_ros.nodes.mock_hardware_node import RigSimulator
+
+    t0 = 1795437000.123
+    sim = RigSimulator(preset("A2"), 5e-4, t0, noise_m=0.0, quantisation_m=0.0, latency_s=0.0)
+    missed = []
+    for k in range(1, 3001):
+        sim.advance_to(t0 + k / 1000.0)       # what the mock does when it publishes /clock tick k
+        if sim.steps != 2 * k:
+            missed.append(k)
+    assert not missed, f"{len(missed)} of 3000 ticks not reached exactly (first {missed[:5]})"
