@@ -131,8 +131,9 @@ def loop_delays(commands, applied, period_s: float, slew_rate_V_per_s: float, wi
     ``applied``: (stamp of the amplifier update, s; applied voltage, V) pairs, one per update
     period. Values are compared exactly (both as sent on the wire: the same float32 rounding).
     An applied voltage counts only when the amplifier reached its target (it moved by less than
-    the slew limit since the previous update: a slew-limited value is no command) and exactly one
-    command from the ``window`` periods before it has its value; others are left out.
+    the slew limit since the previous update: a slew-limited value is no command), every command
+    of the ``window`` periods before it is in the record (a lost one could be the true source)
+    and exactly one of them has its value; others are left out.
     Returns one delay (an integer number of periods) per counted applied voltage.
     """
     by_tick = {int(round(t / period_s)): u for t, u in commands}
@@ -141,6 +142,8 @@ def loop_delays(commands, applied, period_s: float, slew_rate_V_per_s: float, wi
     delays = []
     for j, u in sorted(out.items()):
         if j - 1 not in out or abs(u - out[j - 1]) > step:
+            continue
+        if any(k not in by_tick for k in range(j - window, j)):
             continue
         hits = [k for k in range(j - window, j + 1) if by_tick.get(k) == u]
         if len(hits) == 1:
