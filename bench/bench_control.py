@@ -335,8 +335,9 @@ def bench_controller_timing(seconds, env, params_file, d):
 
 # ----------------------------------------------------------------------------- the ROS mock rig, simulated time
 def mock_rig(args, params_file, levels, mid):
-    """(c) through ROS: mock_hardware_node (simulated time, lockstep with the amplifier, the controller and
-    this driver), amplifier_node (mock backend), position_controller_node with config/position_controller.yaml.
+    """(c) through ROS: mock_hardware_node (simulated time, lockstep with the amplifier's updates, its
+    acknowledgement of every command received -- sample -> applied voltage exactly one tick -- and this
+    driver), amplifier_node (mock backend), position_controller_node with config/position_controller.yaml.
     Noise-free laser (quantisation only), so the measured displacement is the true one."""
     import rclpy
     from builtin_interfaces.msg import Duration
