@@ -61,6 +61,7 @@ from dea_ros.control import (  # noqa: E402
     PiecewiseQuintic,
     PositionController,
     SimulatedRig,
+    loop_delays,
     SineReference,
     Trajectory,
     run_closed_loop,
@@ -334,8 +335,9 @@ def bench_controller_timing(seconds, env, params_file, d):
 
 # ----------------------------------------------------------------------------- the ROS mock rig, simulated time
 def mock_rig(args, params_file, levels, mid):
-    """(c) through ROS: mock_hardware_node (simulated time, lockstep with the amplifier, the controller and
-    this driver), amplifier_node (mock backend), position_controller_node with config/position_controller.yaml.
+    """(c) through ROS: mock_hardware_node (simulated time, lockstep with the amplifier's updates, its
+    acknowledgement of every command received -- sample -> applied voltage exactly one tick -- and this
+    driver), amplifier_node (mock backend), position_controller_node with config/position_controller.yaml.
     Noise-free laser (quantisation only), so the measured displacement is the true one."""
     import rclpy
     from builtin_interfaces.msg import Duration
@@ -358,7 +360,10 @@ def mock_rig(args, params_file, levels, mid):
     rig.start("mock_hardware_node", {
         "params_file": args.truth, "amplifier_port": port, "noise_m": 0.0, "sample_rate_hz": 1000.0,
         "publish_clock": True, "real_time_factor": 1.0, "laser_output": "topic", "clock_rate_hz": 1000.0,
-        "lockstep_timeout_s": 0.5})
+        "lockstep_timeout_s": 1.5, "amplifier_deadman_s": 1.5,
+        # the clock waits for the command of each sample to reach the amplifier (fixed 1-tick delay) and for
+        # this driver (its setpoints go out at the sample they are planned for)
+        "lockstep_topics": "[amplifier_node/command_received, bench_driver/tick_done]"})
     time.sleep(1.0)
     rig.start("amplifier_node", {"use_sim_time": True, "params_file": params_file, "backend": "mock",
                                  "mock_port": port, "autostart": True, "update_rate_hz": 1000.0,
@@ -391,6 +396,9 @@ def mock_rig(args, params_file, levels, mid):
     def on_sample(msg):
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         if state["t0"] is None:
+            ack.publish(Header(stamp=msg.header.stamp, frame_id="bench_driver"))
+            if not (applied and commands):
+                return   # the plan starts once the amplifier applies and the controller commands
             state["t0"] = t
         rel = t - state["t0"]
         samples.append((rel, msg.range))
@@ -425,6 +433,11 @@ def mock_rig(args, params_file, levels, mid):
         (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(m.voltage))), SENSOR_QOS)
     node.create_subscription(BatteryState, "position_controller_node/command_stamped", lambda m: commands.append(
         (m.header.stamp.sec + m.header.stamp.nanosec * 1e-9, float(m.voltage))), SENSOR_QOS)
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    mock_diag = {}
+    node.create_subscription(DiagnosticArray, "/diagnostics", lambda m: mock_diag.update(
+        {kv.key: kv.value for st in m.status if st.name.startswith("mock_hardware_node") for kv in st.values}), 10)
     wall0 = time.monotonic()
     try:
         while (not samples or samples[-1][0] < t_end) and time.monotonic() - wall0 < 1800:
@@ -458,19 +471,14 @@ def mock_rig(args, params_file, levels, mid):
         steps.append((over, settle))
     m = (t >= sine_start + 2.0 / sine_f + 0.1) & (t <= sine_start + 2.0 / sine_f + 1.1)
     err = d[m] - sine.sample_many(t[m])[0]
-    # effective delay: an applied voltage equal to a command (not slew-limited) -> applied time - sample time
-    cmd_t = np.array([c[0] for c in commands])
-    cmd_u = np.array([c[1] for c in commands])
-    delays = []
-    for ta, ua in applied:
-        k = np.nonzero((np.abs(cmd_u - ua) < 0.02) & (cmd_t <= ta + 1e-9) & (cmd_t > ta - 0.01))[0]
-        if k.size == 1:
-            delays.append(round((ta - cmd_t[k[0]]) * 1e3, 1))
+    # sample -> applied voltage, in ticks: an applied voltage equal to exactly one command (not slew-limited)
+    delays = loop_delays([c for c in commands if c[0] >= state["t0"]], [a for a in applied if a[0] >= state["t0"]],
+                         1e-3, args.slew)
     vals, counts = np.unique(np.array(delays), return_counts=True) if delays else (np.array([]), np.array([]))
-    delay_text = ", ".join(f"{v:g} ms: {100 * c / max(len(delays), 1):.0f} %" for v,
-                           c in zip(vals, counts) if c > 0.01 * len(delays))
-    return {"delay": delay_text, "steps": steps, "sine_rms": float(np.sqrt(np.mean(err ** 2))),
-            "sine_max": float(np.max(np.abs(err))),
+    delay_text = ", ".join(f"{v:g} tick{'s' if v != 1 else ''} ({v:g} ms): {c} of {len(delays)}"
+                           for v, c in zip(vals, counts))
+    return {"delay": delay_text, "lockstep_timeouts": mock_diag.get("lockstep_timeouts", "?"), "steps": steps,
+            "sine_rms": float(np.sqrt(np.mean(err ** 2))), "sine_max": float(np.max(np.abs(err))),
             "sim_s": sim_s, "wall_s": wall, "samples": int(t.size)}
 
 
@@ -535,7 +543,8 @@ def main() -> None:
         lines += ["", "10 Hz 30 um sine sent as a JointTrajectory (2 ms points): "
                       f"RMS error {r['sine_rms'] * 1e6:.2f} um, "
                       f"max {r['sine_max'] * 1e6:.2f} um.", "",
-                  f"Sample -> voltage applied by the amplifier (commands matched by value): {r['delay']}."]
+                  f"Sample -> voltage applied by the amplifier (commands matched by value, `loop_delays`): "
+                  f"{r['delay']}; lockstep timeouts: {r['lockstep_timeouts']}."]
         args.timing_s = 0
     elif not args.timing_only:
         lines += tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0, phase)

@@ -6,7 +6,8 @@
   and the feasibility check (u^2 >= 0, voltage and slew limits);
 * :mod:`.feedback`: PID on u^2 with gains by pole placement on the identified model;
 * :mod:`.controller`: :class:`PositionController`, one call per laser sample;
-* :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier).
+* :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
+  sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
@@ -21,11 +22,11 @@ from .reference import (
     check_trajectory,
     plan_move,
 )
-from .simulation import ClosedLoopResult, SimulatedRig, run_closed_loop
+from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
 
 __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
     "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
-    "ClosedLoopResult", "SimulatedRig", "run_closed_loop",
+    "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
 ]

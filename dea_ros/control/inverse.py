@@ -162,6 +162,8 @@ class ModelInverse:
 
     def relaxed_strain(self, displacement_m):
         """eps1 of the relaxed membrane at d: lambda_r(d) - 1 (eq. 11 at rest)."""
+        if type(displacement_m) is float:   # the control loop's scalar path, without numpy's overhead
+            return math.sqrt(1.0 + displacement_m * displacement_m / self.model.l0_sq) - 1.0
         d = np.asarray(displacement_m, dtype=float)
         out = np.sqrt(1.0 + d * d / self.model.l0_sq) - 1.0
         return float(out) if out.ndim == 0 else out
@@ -192,6 +194,7 @@ class StrainIntegrator:
         self.rate = inverse.model.relax_rate
         self.d = float(displacement_m)
         self.eps1 = inverse.relaxed_strain(self.d) if eps1 is None else float(eps1)
+        self._f, self._f_at = math.nan, math.nan   # cache of relaxed_strain(self.d)
 
     def reset(self, displacement_m: float, eps1: float | None = None) -> None:
         self.d = float(displacement_m)
@@ -201,7 +204,9 @@ class StrainIntegrator:
         if dt_s <= 0.0:
             self.d = float(displacement_m)
             return self.eps1
-        f0 = self.inverse.relaxed_strain(self.d)
+        if self._f_at != self.d:                 # lambda_r - 1 at the previous displacement (cached)
+            self._f, self._f_at = self.inverse.relaxed_strain(self.d), self.d
+        f0 = self._f
         f1 = self.inverse.relaxed_strain(float(displacement_m))
         x = self.rate * dt_s
         ex = math.exp(-x)
@@ -209,4 +214,5 @@ class StrainIntegrator:
         slope = (f1 - f0) / x if x > 1e-12 else 0.0
         self.eps1 = f1 - slope + (self.eps1 - f0 + slope) * ex
         self.d = float(displacement_m)
+        self._f, self._f_at = f1, self.d
         return self.eps1

@@ -21,7 +21,7 @@ from ..hardware.amplifier_safety import SafeVoltageController, SafetyLimits
 from ..model import MembraneParameters
 from ..solvers.integrate import RealTimeStepper
 
-__all__ = ["SimulatedRig", "ClosedLoopResult", "run_closed_loop"]
+__all__ = ["SimulatedRig", "ClosedLoopResult", "run_closed_loop", "loop_delays"]
 
 #: ILD1320-10 resolution (10 mm x 1.02 / 65520), as mock_hardware_node
 LASER_QUANTISATION_M = 10e-3 * 1.02 / 65520
@@ -122,3 +122,30 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
         if i < n_total:
             plant.step(u_applied, h)
     return ClosedLoopResult(t_out[:j], true[:j], meas[:j], cmd[:j], applied[:j])
+
+
+def loop_delays(commands, applied, period_s: float, slew_rate_V_per_s: float, window: int = 20) -> list:
+    """Sample -> applied-voltage delays, in periods, measured on recorded streams (a rig, the mock rig).
+
+    ``commands``: (stamp of the sample a command answers, s; command, V) pairs;
+    ``applied``: (stamp of the amplifier update, s; applied voltage, V) pairs, one per update
+    period. Values are compared exactly (both as sent on the wire: the same float32 rounding).
+    An applied voltage counts only when the amplifier reached its target (it moved by less than
+    the slew limit since the previous update: a slew-limited value is no command), every command
+    of the ``window`` periods before it is in the record (a lost one could be the true source)
+    and exactly one of them has its value; others are left out.
+    Returns one delay (an integer number of periods) per counted applied voltage.
+    """
+    by_tick = {int(round(t / period_s)): u for t, u in commands}
+    out = {int(round(t / period_s)): u for t, u in applied}
+    step = 0.99 * slew_rate_V_per_s * period_s
+    delays = []
+    for j, u in sorted(out.items()):
+        if j - 1 not in out or abs(u - out[j - 1]) > step:
+            continue
+        if any(k not in by_tick for k in range(j - window, j)):
+            continue
+        hits = [k for k in range(j - window, j + 1) if by_tick.get(k) == u]
+        if len(hits) == 1:
+            delays.append(j - hits[0])
+    return delays

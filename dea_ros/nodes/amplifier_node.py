@@ -25,7 +25,11 @@ no ROS time change can stall or jump them. Simulated time (``use_sim_time``, set
 is accepted only with the ``mock`` backend; then the update follows the simulated clock (the
 mock rig runs lockstep with it), each update advancing the controller by at most one update
 period (:class:`~dea_ros.hardware.amplifier_safety.ControlClock`), and a wall-clock backstop
-ramps to 0 V when the simulated clock stalls for ``SIM_CLOCK_STALL_S``.
+ramps to 0 V when the simulated clock stalls for ``SIM_CLOCK_STALL_S``. In simulated time the node
+also acknowledges every ``voltage_cmd`` it receives on ``~/command_received`` (std_msgs/Header
+stamped with the simulated time of receipt; nothing else): with that topic in the mock rig's
+``lockstep_topics`` the simulated clock does not advance before a command has reached the
+amplifier, so a controller's sample -> applied voltage delay is a fixed number of updates.
 
 Backends (parameter ``backend``): ``mock`` (UDP to mock_hardware_node), ``uldaq``
 (Measurement Computing DAQ analog output into the amplifier input, ``amplifier_gain_V_per_V``;
@@ -44,7 +48,7 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import BatteryState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Header
 
 from ..hardware.amplifier_backends import (
     AMPLIFIER_PARAMETERS,
@@ -119,6 +123,7 @@ class AmplifierNode(LifecycleNode):
         self.timer = None
         self.backstop_timer = None
         self.voltage_pub = None
+        self.received_pub = None   # simulated time: ~/command_received, for the mock rig's lockstep
         self.cmd_sub = None
         self.fault_reason: str | None = None
         self.backend_fault: str | None = None
@@ -255,6 +260,8 @@ class AmplifierNode(LifecycleNode):
         self._control_time("update")
         self._control_time("wall")
         self.voltage_pub = self.create_publisher(BatteryState, TOPIC_VOLTAGE, SENSOR_QOS)
+        if self.sim_time:
+            self.received_pub = self.create_publisher(Header, "~/command_received", 10)
         self.cmd_sub = self.create_subscription(Float64, TOPIC_VOLTAGE_CMD, self._guarded(self.on_command),
                                                 COMMAND_QOS)
         self.last_update_wall_s = time.monotonic()
@@ -300,9 +307,10 @@ class AmplifierNode(LifecycleNode):
         if self.cmd_sub is not None:
             self.destroy_subscription(self.cmd_sub)
             self.cmd_sub = None
-        if self.voltage_pub is not None:
-            self.destroy_publisher(self.voltage_pub)
-            self.voltage_pub = None
+        for pub in (self.voltage_pub, self.received_pub):
+            if pub is not None:
+                self.destroy_publisher(pub)
+        self.voltage_pub = self.received_pub = None
         self.controller = None
         self.backend = None
         self.fault_reason = None  # the next configure checks everything again
@@ -389,6 +397,8 @@ class AmplifierNode(LifecycleNode):
         if self.controller is None:
             return
         result = self.controller.command(msg.data, self.control_clock.now_s)
+        if self.received_pub is not None:  # simulated time: the mock rig's lockstep waits for it
+            self.received_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id=self.get_name()))
         if not result:
             now = time.monotonic()
             if now - self.last_rejection_log > 1.0:

@@ -17,9 +17,25 @@ Time: with ``publish_clock: false`` the mock follows the wall clock (real time).
 ``real_time_factor`` times the wall clock in ticks of 1/``clock_rate_hz`` (simulated),
 publishes ``/clock`` (rosgraph_msgs/Clock) and the other nodes run with
 ``use_sim_time: true``; the laser output must then be ``topic``. With ``lockstep`` (default) the
-simulation never runs ahead of the amplifier: a tick is published only after the amplifier's
-output for the previous one arrived (stamped with the simulated clock), or after
-``lockstep_timeout_s`` of wall time. ``real_time_factor`` is then an upper bound.
+simulation never runs ahead of the amplifier and of the nodes listed in ``lockstep_topics``. A tick
+k (time t_k) runs in a fixed order:
+
+1. the membrane is integrated up to t_k and ``/clock`` t_k is published;
+2. the mock waits for the amplifier's output for t_k (its UDP datagram, stamped with the simulated
+   clock), which holds from t_k on; only then
+3. the laser samples acquired up to t_k are published (they depend on the voltages before t_k only);
+4. the mock waits until every active participant of ``lockstep_topics`` acknowledged t_k
+   (std_msgs/Header stamped >= t_k: identifier_node's ``~/tick_done``, position_controller_node's
+   ``~/tick_done``, amplifier_node's ``~/command_received``), then tick k + 1 begins.
+
+A participant is active while it acknowledged within ``lockstep_timeout_s`` of wall time; a wait
+longer than that continues anyway (counted in ``lockstep_timeouts``). ``real_time_factor`` is an
+upper bound. With amplifier_node's ``~/command_received`` in ``lockstep_topics`` the clock does
+not advance before the command a controller computed from the sample of t_k has *reached* the
+amplifier (the acknowledgement is stamped with the amplifier's clock at receipt, which is t_k
+because the sample went out after the amplifier's update for t_k): the amplifier applies it at its
+update for t_{k+1}, so a sample-driven controller sees a fixed delay of exactly one tick from
+acquisition to applied voltage (position_controller_node's ``loop_delay_s`` at 1 kHz).
 
 The simulated amplifier has its own dead-man interlock: when no datagram arrived for
 ``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
@@ -98,8 +114,14 @@ class RigSimulator:
         with self.lock:
             self._advance_locked(t_s - self.t0_s)
 
+    #: times within this of a step boundary are on it (s): an epoch time in float64 (~1.8e9 s) carries
+    #: ~0.2 us of rounding, so t - t0 of a clock tick lands up to that far on either side of its step
+    BOUNDARY_TOLERANCE_S = 1e-6
+
     def _advance_locked(self, t_rel: float) -> None:
-        target = int(math.floor(t_rel / self.dt_s + 1e-6))  # whole steps up to t (step boundaries exact)
+        # whole steps up to t: a tick that rounds to just below its boundary must still reach it, or the
+        # laser reads the position half a step old and the next voltage starts half a step early
+        target = int(math.floor((t_rel + self.BOUNDARY_TOLERANCE_S) / self.dt_s))
         while self.steps < target:
             self.stepper.step(self.voltage_V)
             self.steps += 1
@@ -163,7 +185,8 @@ class MockHardwareNode(Node):
         self.clock_rate_hz = declare_float(self, "clock_rate_hz", 500.0, "/clock ticks per simulated second",
                                            10.0, 10000.0)
         self.lockstep = declare_bool(self, "lockstep", True,
-                                     "simulated time: never advance before the amplifier acted on the last tick")
+                                     "simulated time: never advance before the amplifier and the lockstep_topics "
+                                     "acted on the last tick")
         self.lockstep_timeout_s = declare_float(self, "lockstep_timeout_s", 0.5,
                                                 "wall-clock wait for the amplifier per tick, s", 0.001, 10.0)
         deadman_s = declare_float(self, "amplifier_deadman_s", 0.5,
@@ -172,7 +195,8 @@ class MockHardwareNode(Node):
         acks = self.declare_parameter(
             "lockstep_topics", ["identifier_node/tick_done"],
             ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
-                                            "simulated clock advances (lockstep)")).value
+                                            "simulated clock advances (lockstep), e.g. identifier_node/tick_done, "
+                                            "amplifier_node/command_received")).value
         seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
         if self.laser_output not in ("topic", "emulator", "both"):
             raise SystemExit(f"mock_hardware_node: parameter 'laser_output': topic, emulator or both, "
@@ -188,7 +212,8 @@ class MockHardwareNode(Node):
         self.tick_index = 0                      # /clock ticks published (simulated time)
         self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
         self.clock_time_s: float | None = None   # last /clock published
-        self.tick_wall_s = time.monotonic()
+        self.tick_wall_s = time.monotonic()      # wall time at which the current lockstep wait began
+        self.samples_out = True                  # the laser samples of the current tick are published
         self.lockstep_timeouts = 0
         self.ack_times: dict = {}
         if self.publish_clock and self.lockstep:
@@ -258,7 +283,7 @@ class MockHardwareNode(Node):
         if self.range_pub is None:
             return
         period = 1.0 / self.sample_rate_hz
-        while self.sample_t0 + self.next_sample_index * period <= t_end:
+        while self.sample_t0 + self.next_sample_index * period <= t_end + RigSimulator.BOUNDARY_TOLERANCE_S:
             t_acq = self.sample_t0 + self.next_sample_index * period
             self.next_sample_index += 1
             d = self.sim.measure(t_acq)
@@ -272,47 +297,81 @@ class MockHardwareNode(Node):
         self.sim.advance_to(now)
         self.emit_samples(now, self.mono_to_ros)
 
-    def waiting_for_participants(self) -> bool:
-        """True while the amplifier or an active lockstep participant has not processed the last tick."""
-        t = self.clock_time_s - 1e-9
-        if self.amp_time_s is not None and self.amp_time_s < t:
-            return True
+    def _tick_start_s(self) -> float:
+        """Earliest stamp that acknowledges the current tick: half a tick before it. Stamps travel as
+        integer ns and come back as float seconds since the epoch, where one rounding step is ~0.2 us:
+        an exact comparison would miss acknowledgements and wait for the timeout."""
+        return self.clock_time_s - 0.5 / self.clock_rate_hz
+
+    def amplifier_behind(self) -> bool:
+        """True while the amplifier's output for the current tick has not arrived."""
+        return self.amp_time_s is not None and self.amp_time_s < self._tick_start_s()
+
+    def participants_behind(self) -> str | None:
+        """The first active lockstep participant that has not acknowledged the current tick, or None."""
+        t = self._tick_start_s()
         now = time.monotonic()
         for topic, (stamp_s, wall_s) in self.ack_times.items():
             if stamp_s < t and now - wall_s < self.lockstep_timeout_s:
-                return True  # an active participant (acked within the timeout) is behind
-        return False
+                return topic  # an active participant (acked within the timeout) is behind
+        return None
 
     def on_ack(self, topic: str):
         def record(msg: Header) -> None:
             self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
+            if self.publish_clock:
+                self.on_sim_tick()  # the last acknowledgement starts the next tick without waiting for the timer
         return record
 
+    def _waited_too_long(self, what: str) -> bool:
+        """Lockstep wait: False while within ``lockstep_timeout_s`` (keep waiting); True (counted) after it."""
+        waited = time.monotonic() - self.tick_wall_s
+        if waited < self.lockstep_timeout_s:
+            return False
+        self.lockstep_timeouts += 1
+        if self.lockstep_timeouts in (1, 10, 100) or self.lockstep_timeouts % 1000 == 0:
+            self.get_logger().warning(
+                f"{what} silent for {waited:.2f} s (wall) at simulated t = {self.clock_time_s:.3f} s: "
+                f"continuing ({self.lockstep_timeouts} timeouts)")
+        return True
+
+    def release_samples(self) -> bool:
+        """Publish the current tick's laser samples once the amplifier's output for it arrived (lockstep).
+
+        The amplifier applies its voltage for t_k first; the samples up to t_k go out after it, so that
+        every command computed from them reaches the amplifier within tick k (its update at t_k+1 applies
+        it). Returns False while still waiting.
+        """
+        if self.lockstep and self.amplifier_behind() and not self._waited_too_long("amplifier"):
+            return False
+        self.emit_samples(self.clock_time_s, 0.0)
+        self.samples_out = True
+        self.tick_wall_s = time.monotonic()
+        return True
+
     def on_sim_tick(self) -> None:
+        """Advance the lockstep tick as far as possible (module docstring: clock, amplifier, samples, acks)."""
         self.poll_amplifier()
+        if not self.samples_out and not self.release_samples():
+            return
         if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self.real_time_factor:
             return  # ahead of the requested speed
-        if self.lockstep and self.clock_time_s is not None and self.waiting_for_participants():
-            # the amplifier has not acted on the last tick yet: do not run ahead of the controller
-            waited = time.monotonic() - self.tick_wall_s
-            if waited < self.lockstep_timeout_s:
+        if self.lockstep and self.clock_time_s is not None:
+            behind = self.participants_behind()
+            if behind is not None and not self._waited_too_long(behind):
                 return
-            self.lockstep_timeouts += 1
-            if self.lockstep_timeouts in (1, 10, 100) or self.lockstep_timeouts % 1000 == 0:
-                self.get_logger().warning(
-                    f"amplifier silent for {waited:.2f} s (wall) at simulated t = {self.clock_time_s:.3f} s: "
-                    f"continuing with the held voltage ({self.lockstep_timeouts} timeouts)")
         self.tick_index += 1
         t_new = self.sim.t0_s + self.tick_index / self.clock_rate_hz
         self.sim.advance_to(t_new)
-        self.emit_samples(t_new, 0.0)
         self.clock_time_s = t_new
+        self.samples_out = False
         self.tick_wall_s = time.monotonic()
         msg = Clock()
         sec = math.floor(t_new)
         msg.clock.sec = int(sec)
         msg.clock.nanosec = min(int(round((t_new - sec) * 1e9)), 999_999_999)
         self.clock_pub.publish(msg)
+        self.release_samples()  # at once when the amplifier is not waited for
 
     def publish_diagnostics(self) -> None:
         lag = (time.monotonic() - self.wall_t0) * self.real_time_factor - (self.sim.t_s - self.sim_t0) \
