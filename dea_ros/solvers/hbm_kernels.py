@@ -1,0 +1,559 @@
+"""Compiled inner loops of the native harmonic balance (optional numba; same answers as the numpy path).
+
+A collocation Newton solve of N = 4 is 27 unknowns and a few thousand floating-point operations;
+written with numpy it costs hundreds of microseconds of call overhead. These functions are the
+same algorithms written as plain loops: with numba installed (``pip install dea_ros[fast]``, or
+Ubuntu's ``python3-numba``) they are compiled on first use (cached on disk) and the solvers in
+:mod:`dea_ros.solvers.harmonic_balance` and :mod:`dea_ros.solvers.continuation` call them;
+without numba, or with the environment variable ``DEA_ROS_NUMBA=0``, the solvers keep their
+vectorised numpy path. Both paths implement the same equations (collocation residual and
+Jacobian of eq. 16, damped Newton, linearised initial guess, 4th-order Magnus monodromy) and
+agree to rounding (checked by test/solvers/test_hbm_kernels.py).
+
+The model is :func:`dea_ros.model.dynamics.state_equation` compiled as it is (one definition).
+Every kernel works in the scaled variables of
+:class:`~dea_ros.solvers.harmonic_balance.CollocationSystem`: z = x / scale, state-major.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from ..model.dynamics import state_equation
+
+
+def _import_numba():
+    """numba, or None when it is not installed (it is optional: the numpy path needs nothing)."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - depends on the installation
+        return None
+    return numba
+
+
+numba = _import_numba()
+
+__all__ = [
+    "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
+    "collocation_residual_jacobian", "newton", "bordered_corrector", "solve_dense",
+    "linear_guess", "spectral_radius3", "solve_cold", "solve_batch", "max_spectral_radius", "monodromy", "GAUSS_NODES",
+]
+
+_enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
+
+
+def available() -> bool:
+    """True when numba is installed (the kernels can be compiled)."""
+    return numba is not None
+
+
+def enabled() -> bool:
+    """True when the solvers use the compiled kernels (numba installed and not disabled)."""
+    return _enabled
+
+
+def set_enabled(flag: bool) -> bool:
+    """Switch the compiled kernels on or off (e.g. to compare with the numpy path); returns the old state."""
+    global _enabled
+    if flag and numba is None:
+        raise RuntimeError("numba is not installed: pip install numba (or apt install python3-numba)")
+    old, _enabled = _enabled, bool(flag)
+    return old
+
+
+def jit(fn):
+    """``fn`` compiled by numba (no Python objects, cached on disk, IEEE arithmetic as written); ``fn``
+    itself without numba."""
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn) if numba is not None else fn
+
+
+_jit = jit
+_model = jit(state_equation)
+
+#: Newton outcome codes returned by :func:`newton` (0 converged) and their messages.
+STATUS_MESSAGES = {
+    1: "singular harmonic-balance Jacobian (a fold?)",
+    2: "harmonic-balance Newton step is not finite",
+    3: "line search failed",
+    4: "no convergence",
+}
+
+#: Gauss-Legendre nodes of the 2-point rule on [0, 1] (4th-order Magnus).
+GAUSS_NODES = (0.5 - math.sqrt(3.0) / 6.0, 0.5 + math.sqrt(3.0) / 6.0)
+
+
+@_jit
+def _max_abs(v):
+    """max |v_i|, NaN if any entry is NaN (as numpy's max)."""
+    out = 0.0
+    for i in range(v.shape[0]):
+        a = abs(v[i])
+        if a > out or a != a:
+            out = a
+            if a != a:
+                return a
+    return out
+
+
+@_jit
+def _solve_inplace(a, b):
+    """Solve a x = b by Gaussian elimination with partial pivoting (a, b overwritten; x in b).
+
+    Returns False on an exactly zero pivot (what LAPACK reports as singular).
+    """
+    n = a.shape[0]
+    for col in range(n):
+        p = col
+        best = abs(a[col, col])
+        for row in range(col + 1, n):
+            v = abs(a[row, col])
+            if v > best:
+                best = v
+                p = row
+        if best == 0.0:
+            return False
+        if p != col:
+            for k in range(col, n):
+                t = a[col, k]
+                a[col, k] = a[p, k]
+                a[p, k] = t
+            t = b[col]
+            b[col] = b[p]
+            b[p] = t
+        piv = a[col, col]
+        for row in range(col + 1, n):
+            fct = a[row, col] / piv
+            if fct != 0.0:
+                for k in range(col + 1, n):
+                    a[row, k] -= fct * a[col, k]
+                b[row] -= fct * b[col]
+    for row in range(n - 1, -1, -1):
+        acc = b[row]
+        for k in range(row + 1, n):
+            acc -= a[row, k] * b[k]
+        b[row] = acc / a[row, row]
+    return True
+
+
+@_jit
+def solve_dense(a, b):
+    """x with a x = b (copies; partial pivoting); ok False when a is singular."""
+    aa = a.copy()
+    x = b.copy()
+    ok = _solve_inplace(aa, x)
+    return x, ok
+
+
+@_jit
+def _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, want_jac):
+    """Scaled collocation residual into r (3M,), Jacobian into jac, omega X D^T (scaled) into drate."""
+    m = u2.shape[0]
+    x = np.empty((3, m))
+    for i in range(3):
+        for k in range(m):
+            x[i, k] = z[i * m + k] * scale[i]
+    res_scale = np.empty(3)
+    block = np.empty((3, 3))
+    for i in range(3):
+        res_scale[i] = 1.0 / (scale[i] * rate_ref)
+        for col in range(3):
+            block[i, col] = scale[col] / (scale[i] * rate_ref)
+    if want_jac:
+        wr = omega / rate_ref
+        jac[:, :] = 0.0
+        for i in range(3):
+            for k in range(m):
+                for j in range(m):
+                    jac[i * m + k, i * m + j] = wr * dmat[k, j]
+    a = np.empty((3, 3))
+    f = np.empty(3)
+    for k in range(m):
+        f[0], f[1], f[2] = _unpack(constants, x[0, k], x[1, k], x[2, k], u2[k], a)
+        for i in range(3):
+            acc = 0.0
+            for j in range(m):
+                acc += x[i, j] * dmat[k, j]
+            rate = omega * acc
+            drate[i * m + k] = rate * res_scale[i]
+            r[i * m + k] = (rate - f[i]) * res_scale[i]
+            if want_jac:
+                for col in range(3):
+                    jac[i * m + k, col * m + k] -= a[i, col] * block[i, col]
+
+
+@_jit
+def collocation_residual_jacobian(z, omega, u2, constants, scale, rate_ref, dmat):
+    """(r, jac, dr/dln omega) of :meth:`CollocationSystem.residual_and_jacobian` at z (scaled)."""
+    n = z.shape[0]
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    drate = np.empty(n)
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    return r, jac, drate
+
+
+@_jit
+def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Damped Newton of :meth:`CollocationSystem.newton`: (z, iterations, scaled residual, status).
+
+    status 0: converged (full step below tol); otherwise a key of :data:`STATUS_MESSAGES`.
+    """
+    n = z0.shape[0]
+    z = z0.copy()
+    z_new = np.empty(n)
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    r_new = np.empty(n)
+    jac_new = np.empty((n, n))
+    drate = np.empty(n)
+    work = np.empty((n, n))
+    step = np.empty(n)
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    rnorm = _max_abs(r)
+    for it in range(1, max_iter + 1):
+        work[:, :] = jac
+        step[:] = r
+        if not _solve_inplace(work, step):
+            return z, it, rnorm, 1
+        snorm = _max_abs(step)
+        if not np.isfinite(snorm):
+            return z, it, rnorm, 2
+        lam = 1.0
+        ok = False
+        rn_new = rnorm
+        for _ls in range(12):
+            for i in range(n):
+                z_new[i] = z[i] - lam * step[i]
+            _fill(z_new, omega, u2, constants, scale, rate_ref, dmat, r_new, jac_new, drate, True)
+            rn_new = _max_abs(r_new)
+            if np.isfinite(rn_new) and (rn_new < rnorm or rn_new < 1e-13 or lam * snorm < tol):
+                ok = True
+                break
+            lam *= 0.5
+        if not ok:
+            return z, it, rnorm, 3
+        z, z_new = z_new, z
+        r, r_new = r_new, r
+        jac, jac_new = jac_new, jac
+        rnorm = rn_new
+        if lam == 1.0 and snorm <= tol:
+            return z, it, rnorm, 0
+    return z, max_iter, rnorm, 4
+
+
+@_jit
+def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, bordered).
+
+    Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0; gives up (ok False) on a
+    singular matrix, a non-finite or > 10 step, or after max_iter; converged when the step is
+    below max(tol, 1e-9). ``bordered`` is the matrix at the last iterate (the next tangent's).
+    """
+    n = z_pred.shape[0]
+    zc = z_pred.copy()
+    pc = p_pred
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    drate = np.empty(n)
+    big = np.empty((n + 1, n + 1))
+    work = np.empty((n + 1, n + 1))
+    rhs = np.empty(n + 1)
+    for it in range(1, max_iter + 1):
+        omega = math.exp(pc)
+        _fill(zc, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+        g = 0.0
+        for i in range(n):
+            g += tz[i] * (zc[i] - z_pred[i])
+        g = wz * g + tp * (pc - p_pred)
+        big[:n, :n] = jac
+        big[:n, n] = drate
+        for i in range(n):
+            big[n, i] = wz * tz[i]
+        big[n, n] = tp
+        work[:, :] = big
+        rhs[:n] = r
+        rhs[n] = g
+        if not _solve_inplace(work, rhs):
+            return False, zc, pc, it, big
+        for i in range(n):
+            zc[i] -= rhs[i]
+        pc -= rhs[n]
+        snorm = _max_abs(rhs)
+        if not np.isfinite(snorm) or snorm > 10.0:
+            return False, zc, pc, it, big
+        if snorm < max(tol, 1e-9):
+            return True, zc, pc, it, big
+    return False, zc, pc, max_iter, big
+
+
+@_jit
+def linear_guess(x_eq, a, b3, u2, u2_mean, omega):
+    """Periodic response (3, M) of x' = A (x - x_eq) + b (u2 - mean) with b = (0, 0, b3), by a DFT.
+
+    ``a`` is df/dx at the equilibrium x_eq under the mean u^2 (:func:`harmonic_balance.linear_guess`).
+    """
+    m = u2.shape[0]
+    nh = (m - 1) // 2
+    out = np.empty((3, m))
+    for i in range(3):
+        for k in range(m):
+            out[i, k] = 0.0
+    lhs = np.empty((3, 3), dtype=np.complex128)
+    rhs = np.empty(3, dtype=np.complex128)
+    for n in range(nh + 1):
+        w = 0.0 + 0.0j
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            w += (u2[k] - u2_mean) * complex(math.cos(ang), -math.sin(ang))
+        for i in range(3):
+            for j in range(3):
+                lhs[i, j] = -a[i, j]
+            lhs[i, i] += 1j * n * omega
+            rhs[i] = 0.0
+        rhs[2] = b3 * w
+        if not _solve_inplace(lhs, rhs):
+            for i in range(3):
+                rhs[i] = 0.0
+        weight = (1.0 if n == 0 else 2.0) / m
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            e = complex(math.cos(ang), math.sin(ang))
+            for i in range(3):
+                out[i, k] += weight * (rhs[i] * e).real
+    for i in range(3):
+        for k in range(m):
+            out[i, k] += x_eq[i]
+    return out
+
+
+@_jit
+def solve_cold(x_eq, b3, u2, u2_mean, omega, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Linearised guess (:func:`linear_guess`) then :func:`newton`: (z, iterations, residual, status)."""
+    am = np.empty((3, 3))
+    _unpack(constants, x_eq[0], x_eq[1], x_eq[2], u2_mean, am)
+    x0 = linear_guess(x_eq, am, b3, u2, u2_mean, omega)
+    m = u2.shape[0]
+    z0 = np.empty(3 * m)
+    for i in range(3):
+        for k in range(m):
+            z0[i * m + k] = x0[i, k] / scale[i]
+    return newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter)
+
+
+@_jit
+def solve_batch(z0, x_eq, b3, u2, u2_mean, omega, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Many independent solves: from z0 (B, 3M) or, when z0 has no rows, from the linearised guesses
+    about x_eq (B, 3) with gains b3 (B,); u2 (B, M), u2_mean (B,), omega (B,).
+    Returns z (B, 3M), iterations (B,), residuals (B,), statuses (B,)."""
+    nb, m = u2.shape
+    z = np.empty((nb, 3 * m))
+    its = np.empty(nb, dtype=np.int64)
+    res = np.empty(nb)
+    status = np.empty(nb, dtype=np.int64)
+    for b in range(nb):
+        if z0.shape[0] == 0:
+            zb, itb, rb, sb = solve_cold(x_eq[b], b3[b], u2[b], u2_mean[b], omega[b], constants, scale, rate_ref,
+                                         dmat, tol, max_iter)
+        else:
+            zb, itb, rb, sb = newton(z0[b], omega[b], u2[b], constants, scale, rate_ref, dmat, tol, max_iter)
+        z[b] = zb
+        its[b] = itb
+        res[b] = rb
+        status[b] = sb
+    return z, its, res, status
+
+
+@_jit
+def _scaled_jacobian(constants, d, e, v, u2, scale, h, out):
+    """h S^-1 (df/dx) S at one point into out (3, 3)."""
+    _unpack(constants, d, e, v, u2, out)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] *= h * scale[j] / scale[i]
+
+
+@_jit
+def _unpack(constants, d, e, v, u2, jac):
+    """df/dx at one point into jac (3, 3); returns f as three floats (static tuple indices only)."""
+    f, a = _model(constants, d, e, v, u2)
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = a
+    jac[0, 0], jac[0, 1], jac[0, 2] = j00, j01, j02
+    jac[1, 0], jac[1, 1], jac[1, 2] = j10, j11, j12
+    jac[2, 0], jac[2, 1], jac[2, 2] = j20, j21, j22
+    return f[0], f[1], f[2]
+
+
+@_jit
+def _ratio_jacobian(constants, d, e, v, u2, ratio, out):
+    """(df/dx)_ij ratio_ij at one point into out (3, 3); ratio = h scale_j / scale_i."""
+    _unpack(constants, d, e, v, u2, out)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] *= ratio[i, j]
+
+
+@_jit
+def max_spectral_radius(states, u2_nodes, constants, scale, every):
+    """Largest |eigenvalue| of S^-1 (df/dx) S over the nodes 0, every, 2 every, ... of each state.
+
+    ``states`` (B, 3, M), ``u2_nodes`` (M,); returns (B,) (the step control of the Magnus scheme).
+    """
+    nb, _three, m = states.shape
+    out = np.empty(nb)
+    a = np.empty((3, 3))
+    for b in range(nb):
+        best = 0.0
+        for k in range(0, m, every):
+            _scaled_jacobian(constants, states[b, 0, k], states[b, 1, k], states[b, 2, k], u2_nodes[k],
+                             scale, 1.0, a)
+            best = max(best, spectral_radius3(a))
+        out[b] = best
+    return out
+
+
+@_jit
+def _cbrt(x):
+    return math.copysign(abs(x) ** (1.0 / 3.0), x)
+
+
+@_jit
+def spectral_radius3(a):
+    """max |eigenvalue| of a real 3x3 matrix, from its characteristic cubic (Cardano / trigonometric)."""
+    tr = a[0, 0] + a[1, 1] + a[2, 2]
+    minors = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] + a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+              + a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
+    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    # lambda^3 + c2 lambda^2 + c1 lambda + c0 with c2 = -tr, c1 = minors, c0 = -det; lambda = t + tr / 3
+    c2 = -tr
+    shift = -c2 / 3.0
+    p = minors - c2 * c2 / 3.0
+    q = 2.0 * c2 ** 3 / 27.0 - c2 * minors / 3.0 - det
+    disc = 0.25 * q * q + p * p * p / 27.0
+    if disc > 0.0:
+        sq = math.sqrt(disc)
+        u = _cbrt(-0.5 * q + sq)
+        v = _cbrt(-0.5 * q - sq)
+        real_root = abs(u + v + shift)
+        re = -0.5 * (u + v) + shift
+        im = 0.5 * math.sqrt(3.0) * (u - v)
+        return max(real_root, math.sqrt(re * re + im * im))
+    r = math.sqrt(max(-p / 3.0, 0.0))
+    if r == 0.0:
+        return abs(shift)
+    cos_arg = min(1.0, max(-1.0, -0.5 * q / (r * r * r)))
+    phi = math.acos(cos_arg)
+    best = 0.0
+    for k in range(3):
+        best = max(best, abs(2.0 * r * math.cos((phi + 2.0 * math.pi * k) / 3.0) + shift))
+    return best
+
+
+@_jit
+def _mm3(a, b, out):
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+
+
+@_jit
+def _expm_taylor(x, coef, powers, out, tmp):
+    """exp(x) of a 3x3 matrix of norm <= ~1: its Taylor polynomial of degree len(coef) - 1
+    (coefficients 1/k!), evaluated by Paterson-Stockmeyer in blocks of 4 (6 products for degree 14)."""
+    degree = coef.shape[0] - 1
+    for i in range(3):
+        for j in range(3):
+            powers[0, i, j] = 1.0 if i == j else 0.0
+            powers[1, i, j] = x[i, j]
+    _mm3(x, x, powers[2])
+    _mm3(powers[2], x, powers[3])
+    x4 = powers[4]
+    _mm3(powers[2], powers[2], x4)
+    top = degree // 4
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 0.0
+    for blk in range(top, -1, -1):
+        if blk < top:  # out = out @ x4
+            _mm3(out, x4, tmp)
+            out[:, :] = tmp
+        for p in range(4):
+            k = 4 * blk + p
+            if k <= degree:
+                c = coef[k]
+                for i in range(3):
+                    for j in range(3):
+                        out[i, j] += c * powers[p, i, j]
+
+
+@_jit
+def monodromy(state, phases, u2, h, constants, scale, order):
+    """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
+
+    ``phases`` (2S,) are the phases of the two Gauss points of the S steps (first points of all
+    steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
+    Taylor order of the matrix exponential (Horner form, as ``_expm_small`` / ``_expm3``). The
+    state is evaluated by its trigonometric interpolant through the M collocation values.
+    """
+    m = state.shape[1]
+    nh = (m - 1) // 2
+    steps = phases.shape[0] // 2
+    # trigonometric coefficients of the interpolant: x(theta) = c0 + sum_n ca_n cos(n theta) + cs_n sin(n theta)
+    c0 = np.zeros(3)
+    ca = np.zeros((3, nh + 1))
+    cs = np.zeros((3, nh + 1))
+    for i in range(3):
+        for k in range(m):
+            c0[i] += state[i, k] / m
+    for n in range(1, nh + 1):
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            cn, sn = math.cos(ang), math.sin(ang)
+            for i in range(3):
+                ca[i, n] += 2.0 * state[i, k] * cn / m
+                cs[i, n] += 2.0 * state[i, k] * sn / m
+    a1 = np.empty((3, 3))
+    a2 = np.empty((3, 3))
+    p12 = np.empty((3, 3))
+    p21 = np.empty((3, 3))
+    om = np.empty((3, 3))
+    ex = np.empty((3, 3))
+    tmp = np.empty((3, 3))
+    total = np.eye(3)
+    xg = np.empty((2, 3))
+    coef = np.empty(order + 1)   # 1 / k!
+    coef[0] = 1.0
+    for k in range(1, order + 1):
+        coef[k] = coef[k - 1] / k
+    powers = np.empty((5, 3, 3))
+    ratio = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            ratio[i, j] = h * scale[j] / scale[i]
+    c3 = math.sqrt(3.0) / 12.0
+    for s in range(steps):
+        for g in range(2):
+            th = phases[s + g * steps]
+            c1, s1 = math.cos(th), math.sin(th)
+            cn, sn = c1, s1
+            for i in range(3):
+                xg[g, i] = c0[i]
+            for n in range(1, nh + 1):
+                for i in range(3):
+                    xg[g, i] += ca[i, n] * cn + cs[i, n] * sn
+                cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        _ratio_jacobian(constants, xg[0, 0], xg[0, 1], xg[0, 2], u2[s], ratio, a1)
+        _ratio_jacobian(constants, xg[1, 0], xg[1, 1], xg[1, 2], u2[s + steps], ratio, a2)
+        _mm3(a2, a1, p21)
+        _mm3(a1, a2, p12)
+        for i in range(3):
+            for j in range(3):
+                om[i, j] = 0.5 * (a1[i, j] + a2[i, j]) + c3 * (p21[i, j] - p12[i, j])
+        _expm_taylor(om, coef, powers, ex, tmp)
+        _mm3(ex, total, tmp)     # later steps multiply from the left
+        for i in range(3):
+            for j in range(3):
+                total[i, j] = tmp[i, j]
+    return total
