@@ -270,6 +270,7 @@ class CollocationSystem:
         self.block_scale = (self.scale[None, :] / (self.scale[:, None] * self.rate_ref))[:, :, None]
         self.res_scale = (1.0 / (self.scale * self.rate_ref))[:, None]
         self.constants = model.constants
+        self.phases = 2.0 * np.pi * np.arange(m) / m    # of the collocation points, rad
 
     def unscale(self, z: np.ndarray) -> np.ndarray:
         return z.reshape(3, self.m) * self.scale[:, None]
@@ -495,8 +496,7 @@ def solve_native(
     divisor, m = response_layout(periodic_input, n_harmonics, use_symmetry)
     system = setup.system(m)
     omega = periodic_input.omega * divisor
-    phases = 2.0 * np.pi * np.arange(m) / m
-    u2 = periodic_input.at_phase(phases / divisor) ** 2
+    u2 = periodic_input.at_phase(system.phases / divisor) ** 2
     total_it = 0
     attempts = []
     if x_guess is not None:

@@ -137,12 +137,29 @@ def _solve_inplace(a, b):
     return True
 
 
+#: Above this size the linear systems go to LAPACK (faster blocked code); below, the loop above (less overhead).
+LAPACK_FROM = 40
+
+
+@_jit
+def _solve_into(a, b):
+    """Solve a x = b into b (a may be overwritten); False when a is singular."""
+    if a.shape[0] < LAPACK_FROM:
+        return _solve_inplace(a, b)
+    try:
+        x = np.linalg.solve(a, b)
+    except Exception:  # numba raises on an exactly singular matrix
+        return False
+    b[:] = x
+    return True
+
+
 @_jit
 def solve_dense(a, b):
     """x with a x = b (copies; partial pivoting); ok False when a is singular."""
     aa = a.copy()
     x = b.copy()
-    ok = _solve_inplace(aa, x)
+    ok = _solve_into(aa, x)
     return x, ok
 
 
@@ -215,7 +232,7 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
     for it in range(1, max_iter + 1):
         work[:, :] = jac
         step[:] = r
-        if not _solve_inplace(work, step):
+        if not _solve_into(work, step):
             return z, it, rnorm, 1
         snorm = _max_abs(step)
         if not np.isfinite(snorm):
@@ -275,7 +292,7 @@ def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_re
         work[:, :] = big
         rhs[:n] = r
         rhs[n] = g
-        if not _solve_inplace(work, rhs):
+        if not _solve_into(work, rhs):
             return False, zc, pc, it, big
         for i in range(n):
             zc[i] -= rhs[i]
