@@ -663,7 +663,7 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
     if steps is None:
         if fast:
             u2_nodes = sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
-            rate = float(hbm_kernels.max_spectral_radius(state[None], u2_nodes, model.constants, scale, 1)[0])
+            rate = float(hbm_kernels.max_spectral_radius(state[None], u2_nodes[None], model.constants, scale, 1)[0])
         else:
             u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
             a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
@@ -742,7 +742,27 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     """:func:`attach_floquet` on many solutions, the eigenvalues in one stacked call (same results)."""
     if not sols:
         return
-    mu = np.linalg.eigvals(np.stack([monodromy_matrix(model, sol, scale=scale) for sol in sols]))
+    # step counts as monodromy_matrix chooses them (h rho <= 0.5, 48 to 8192), all solutions at once
+    scale = np.asarray(scale, dtype=float)
+    states = np.stack([sol.state for sol in sols])
+    m = states.shape[2]
+    u2_nodes = np.stack([sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
+                         for sol in sols])
+    rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
+    mats = np.empty((len(sols), 3, 3))
+    phases = {}
+    for b, sol in enumerate(sols):
+        period = sol.response_period_s
+        steps = int(min(8192, max(48, math.ceil(float(rates[b]) * period / 0.5))))
+        phase = phases.get(steps)
+        if phase is None:  # the Gauss phases 2 pi (k + g) / steps of monodromy_matrix
+            phase = phases[steps] = np.arange(2 * steps, dtype=float)
+            phase[:steps] += _GAUSS[0]
+            phase[steps:] += _GAUSS[1] - steps
+            phase *= 2.0 * np.pi / steps
+        u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
+        mats[b] = hbm_kernels.monodromy(states[b], phase, u2, period / steps, model.constants, scale, 14)
+    mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for sol, mu_k in zip(sols, mu):
         sol.multipliers = mu_k
@@ -777,7 +797,7 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     if fast:
         scale = np.asarray(scale, dtype=float)
         x_all = np.ascontiguousarray(x_all)
-        rate = hbm_kernels.max_spectral_radius(x_all, u2_nodes, model.constants, scale, 3)
+        rate = hbm_kernels.max_spectral_radius(x_all, np.broadcast_to(u2_nodes, (nb, m)), model.constants, scale, 3)
     else:
         rows = model.jacobian_u2(x_all[:, 0], x_all[:, 1], x_all[:, 2], u2_nodes[None, :])
         a_nodes = np.empty((nb, m, 3, 3))

@@ -403,19 +403,10 @@ def _unpack(constants, d, e, v, u2, jac):
 
 
 @_jit
-def _ratio_jacobian(constants, d, e, v, u2, ratio, out):
-    """(df/dx)_ij ratio_ij at one point into out (3, 3); ratio = h scale_j / scale_i."""
-    _unpack(constants, d, e, v, u2, out)
-    for i in range(3):
-        for j in range(3):
-            out[i, j] *= ratio[i, j]
-
-
-@_jit
 def max_spectral_radius(states, u2_nodes, constants, scale, every):
     """Largest |eigenvalue| of S^-1 (df/dx) S over the nodes 0, every, 2 every, ... of each state.
 
-    ``states`` (B, 3, M), ``u2_nodes`` (M,); returns (B,) (the step control of the Magnus scheme).
+    ``states`` (B, 3, M), ``u2_nodes`` (B, M); returns (B,) (the step control of the Magnus scheme).
     """
     nb, _three, m = states.shape
     out = np.empty(nb)
@@ -423,7 +414,7 @@ def max_spectral_radius(states, u2_nodes, constants, scale, every):
     for b in range(nb):
         best = 0.0
         for k in range(0, m, every):
-            _scaled_jacobian(constants, states[b, 0, k], states[b, 1, k], states[b, 2, k], u2_nodes[k],
+            _scaled_jacobian(constants, states[b, 0, k], states[b, 1, k], states[b, 2, k], u2_nodes[b, k],
                              scale, 1.0, a)
             best = max(best, spectral_radius3(a))
         out[b] = best
@@ -469,40 +460,58 @@ def spectral_radius3(a):
 
 
 @_jit
-def _mm3(a, b, out):
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+def _t9(a0, a1, a2, a3, a4, a5, a6, a7, a8):
+    return (a0, a1, a2, a3, a4, a5, a6, a7, a8)
 
 
 @_jit
-def _expm_taylor(x, coef, powers, out, tmp):
-    """exp(x) of a 3x3 matrix of norm <= ~1: its Taylor polynomial of degree len(coef) - 1
-    (coefficients 1/k!), evaluated by Paterson-Stockmeyer in blocks of 4 (6 products for degree 14)."""
-    degree = coef.shape[0] - 1
-    for i in range(3):
-        for j in range(3):
-            powers[0, i, j] = 1.0 if i == j else 0.0
-            powers[1, i, j] = x[i, j]
-    _mm3(x, x, powers[2])
-    _mm3(powers[2], x, powers[3])
-    x4 = powers[4]
-    _mm3(powers[2], powers[2], x4)
-    top = degree // 4
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = 0.0
-    for blk in range(top, -1, -1):
-        if blk < top:  # out = out @ x4
-            _mm3(out, x4, tmp)
-            out[:, :] = tmp
-        for p in range(4):
-            k = 4 * blk + p
-            if k <= degree:
-                c = coef[k]
-                for i in range(3):
-                    for j in range(3):
-                        out[i, j] += c * powers[p, i, j]
+def _mul9(a, b):
+    """Product of 3x3 matrices held as row-major 9-tuples."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
+
+
+@_jit
+def _lin9(alpha, a, beta, b):
+    """alpha a + beta b for 9-tuples."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (alpha * a0 + beta * b0, alpha * a1 + beta * b1, alpha * a2 + beta * b2,
+            alpha * a3 + beta * b3, alpha * a4 + beta * b4, alpha * a5 + beta * b5,
+            alpha * a6 + beta * b6, alpha * a7 + beta * b7, alpha * a8 + beta * b8)
+
+
+@_jit
+def _poly9(c0, c1, c2, c3, x, x2, x3):
+    """c0 I + c1 x + c2 x^2 + c3 x^3 (9-tuples)."""
+    p = _lin9(c1, x, c2, x2)
+    p = _lin9(1.0, p, c3, x3)
+    return (p[0] + c0, p[1], p[2], p[3], p[4] + c0, p[5], p[6], p[7], p[8] + c0)
+
+
+@_jit
+def _expm9(x, coef):
+    """exp(x) of a 3x3 matrix (9-tuple) of norm <= ~1 by its Taylor polynomial with coefficients coef
+    (16 entries, 1/k! up to the order and 0 beyond), Paterson-Stockmeyer in blocks of 4."""
+    x2 = _mul9(x, x)
+    x3 = _mul9(x2, x)
+    x4 = _mul9(x2, x2)
+    out = _poly9(coef[12], coef[13], coef[14], coef[15], x, x2, x3)
+    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[8], coef[9], coef[10], coef[11], x, x2, x3))
+    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[4], coef[5], coef[6], coef[7], x, x2, x3))
+    return _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[0], coef[1], coef[2], coef[3], x, x2, x3))
+
+
+@_jit
+def _jac9(constants, d, e, v, u2, rt):
+    """(df/dx)_ij rt_ij at one point as a 9-tuple (rt_ij = h scale_j / scale_i)."""
+    _f, a = _model(constants, d, e, v, u2)
+    (j0, j1, j2), (j3, j4, j5), (j6, j7, j8) = a
+    return (j0 * rt[0], j1 * rt[1], j2 * rt[2], j3 * rt[3], j4 * rt[4], j5 * rt[5], j6 * rt[6], j7 * rt[7],
+            j8 * rt[8])
 
 
 @_jit
@@ -511,7 +520,7 @@ def monodromy(state, phases, u2, h, constants, scale, order):
 
     ``phases`` (2S,) are the phases of the two Gauss points of the S steps (first points of all
     steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
-    Taylor order of the matrix exponential (Horner form, as ``_expm_small`` / ``_expm3``). The
+    Taylor order of the matrix exponential (<= 15; that of ``_expm_small`` / ``_expm3``). The
     state is evaluated by its trigonometric interpolant through the M collocation values.
     """
     m = state.shape[1]
@@ -531,46 +540,39 @@ def monodromy(state, phases, u2, h, constants, scale, order):
             for i in range(3):
                 ca[i, n] += 2.0 * state[i, k] * cn / m
                 cs[i, n] += 2.0 * state[i, k] * sn / m
-    a1 = np.empty((3, 3))
-    a2 = np.empty((3, 3))
-    p12 = np.empty((3, 3))
-    p21 = np.empty((3, 3))
-    om = np.empty((3, 3))
-    ex = np.empty((3, 3))
-    tmp = np.empty((3, 3))
-    total = np.eye(3)
-    xg = np.empty((2, 3))
-    coef = np.empty(order + 1)   # 1 / k!
+    coef = np.zeros(16)   # 1 / k! up to the order, 0 beyond (4 blocks of 4)
     coef[0] = 1.0
     for k in range(1, order + 1):
         coef[k] = coef[k - 1] / k
-    powers = np.empty((5, 3, 3))
-    ratio = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            ratio[i, j] = h * scale[j] / scale[i]
+    rt = _t9(h * scale[0] / scale[0], h * scale[1] / scale[0], h * scale[2] / scale[0],
+             h * scale[0] / scale[1], h * scale[1] / scale[1], h * scale[2] / scale[1],
+             h * scale[0] / scale[2], h * scale[1] / scale[2], h * scale[2] / scale[2])
     c3 = math.sqrt(3.0) / 12.0
+    total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     for s in range(steps):
-        for g in range(2):
-            th = phases[s + g * steps]
-            c1, s1 = math.cos(th), math.sin(th)
-            cn, sn = c1, s1
-            for i in range(3):
-                xg[g, i] = c0[i]
-            for n in range(1, nh + 1):
-                for i in range(3):
-                    xg[g, i] += ca[i, n] * cn + cs[i, n] * sn
-                cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
-        _ratio_jacobian(constants, xg[0, 0], xg[0, 1], xg[0, 2], u2[s], ratio, a1)
-        _ratio_jacobian(constants, xg[1, 0], xg[1, 1], xg[1, 2], u2[s + steps], ratio, a2)
-        _mm3(a2, a1, p21)
-        _mm3(a1, a2, p12)
-        for i in range(3):
-            for j in range(3):
-                om[i, j] = 0.5 * (a1[i, j] + a2[i, j]) + c3 * (p21[i, j] - p12[i, j])
-        _expm_taylor(om, coef, powers, ex, tmp)
-        _mm3(ex, total, tmp)     # later steps multiply from the left
-        for i in range(3):
-            for j in range(3):
-                total[i, j] = tmp[i, j]
-    return total
+        # the state at the two Gauss points (3x3 matrices below are 9-tuples: kept in registers)
+        th = phases[s]
+        c1, s1 = math.cos(th), math.sin(th)
+        cn, sn = c1, s1
+        d, e, v = c0[0], c0[1], c0[2]
+        for n in range(1, nh + 1):
+            d += ca[0, n] * cn + cs[0, n] * sn
+            e += ca[1, n] * cn + cs[1, n] * sn
+            v += ca[2, n] * cn + cs[2, n] * sn
+            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        a1 = _jac9(constants, d, e, v, u2[s], rt)
+        th = phases[s + steps]
+        c1, s1 = math.cos(th), math.sin(th)
+        cn, sn = c1, s1
+        d, e, v = c0[0], c0[1], c0[2]
+        for n in range(1, nh + 1):
+            d += ca[0, n] * cn + cs[0, n] * sn
+            e += ca[1, n] * cn + cs[1, n] * sn
+            v += ca[2, n] * cn + cs[2, n] * sn
+            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        a2 = _jac9(constants, d, e, v, u2[s + steps], rt)
+        om = _lin9(0.5, _lin9(1.0, a1, 1.0, a2), c3, _lin9(1.0, _mul9(a2, a1), -1.0, _mul9(a1, a2)))
+        total = _mul9(_expm9(om, coef), total)     # later steps multiply from the left
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2], out[2, 0], out[2, 1], out[2, 2] = total
+    return out
