@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 
@@ -38,10 +39,13 @@ numba = _import_numba()
 __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
     "collocation_residual_jacobian", "newton", "bordered_corrector", "solve_dense",
-    "linear_guess", "spectral_radius3", "solve_cold", "solve_batch", "max_spectral_radius", "monodromy", "GAUSS_NODES",
+    "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
+    "monodromy", "GAUSS_NODES",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
+_checked = False
+_failure = None   # why the kernels could not run (then the numpy path is used)
 
 
 def available() -> bool:
@@ -50,7 +54,23 @@ def available() -> bool:
 
 
 def enabled() -> bool:
-    """True when the solvers use the compiled kernels (numba installed and not disabled)."""
+    """True when the solvers use the compiled kernels (numba installed, not disabled, and they compile).
+
+    The first call compiles (or loads from the on-disk cache) every kernel and runs it on a small
+    problem; a numba too old for one of them is reported once (a warning) and the numpy path is
+    used from then on.
+    """
+    global _enabled, _checked, _failure
+    if _enabled and not _checked:
+        _checked = True
+        try:
+            _self_check()
+        except Exception as exc:  # noqa: BLE001 - any numba failure: fall back, say why
+            _enabled = False
+            _failure = (f"numba {getattr(numba, '__version__', '?')} could not run the harmonic-balance kernels "
+                        f"({type(exc).__name__}: {str(exc)[:300]})")
+            warnings.warn(f"dea_ros: {_failure}; using the numpy path (same results, slower)", RuntimeWarning,
+                          stacklevel=2)
     return _enabled
 
 
@@ -59,7 +79,10 @@ def set_enabled(flag: bool) -> bool:
     global _enabled
     if flag and numba is None:
         raise RuntimeError("numba is not installed: pip install numba (or apt install python3-numba)")
-    old, _enabled = _enabled, bool(flag)
+    old = enabled()
+    if flag and _failure is not None:
+        raise RuntimeError(_failure)
+    _enabled = bool(flag)
     return old
 
 
@@ -576,3 +599,32 @@ def monodromy(state, phases, u2, h, constants, scale, order):
     out = np.empty((3, 3))
     out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2], out[2, 0], out[2, 1], out[2, 2] = total
     return out
+
+
+def _self_check() -> None:
+    """Compile (or load) every kernel with the argument types the solvers pass, on a tiny problem."""
+    constants = (2.9e-4, 0.02, -0.019, 4.0e7, 1.07, 3.5e4, 9.81, -2.2e5, -2.3e5, 9.0e5, 5.2e5, -5.0e5, -2.6e5)
+    scale = np.array([3e-3, 3e-2, 0.2])
+    m = 5
+    k = np.arange(m)
+    diff = k[:, None] - k[None, :]
+    with np.errstate(divide="ignore"):
+        dmat = 0.5 * (-1.0) ** diff / np.sin(np.pi * diff / m)
+    dmat[k, k] = 0.0
+    u2 = np.full(m, 1e6)
+    x_eq = np.array([3e-3, 0.03, 0.0])
+    z, _it, _res, _status = solve_cold(x_eq, -1e-4, u2, 1e6, 10.0, constants, scale, 60.0, dmat, 1e-10, 5)
+    newton(z, 10.0, u2, constants, scale, 60.0, dmat, 1e-10, 2)
+    solve_batch(np.empty((0, 3 * m)), x_eq[None], np.array([-1e-4]), u2[None], np.array([1e6]), np.array([10.0]),
+                constants, scale, 60.0, dmat, 1e-10, 2)
+    solve_batch(z[None], np.empty((0, 3)), np.empty(0), u2[None], np.array([1e6]), np.array([10.0]),
+                constants, scale, 60.0, dmat, 1e-10, 2)
+    bordered_corrector(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat, 1e-10, 2)
+    for n in (3, LAPACK_FROM + 1):
+        solve_dense(np.eye(n), np.ones(n))
+    state = (z.reshape(3, m) * scale[:, None])
+    max_spectral_radius(state[None], u2[None], constants, scale, 1)
+    max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)
+    phases = np.linspace(0.0, 6.0, 8)
+    monodromy(state, phases, np.full(8, 1e6), 1e-3, constants, scale, 14)
+    collocation_residual_jacobian(z, 10.0, u2, constants, scale, 60.0, dmat)

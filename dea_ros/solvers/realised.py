@@ -26,6 +26,7 @@ from __future__ import annotations
 import functools
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,7 +129,17 @@ def rk4_periods(constants, x0, u2_tab, h, steps, total, d0_m, settle_periods, st
 
 @functools.lru_cache(maxsize=1)
 def _rk4_compiled():
-    return hbm_kernels.jit(rk4_periods)
+    """:func:`rk4_periods` compiled (checked on one step), or itself if this numba cannot compile it."""
+    fn = hbm_kernels.jit(rk4_periods)
+    constants = (2.9e-4, 0.02, -0.019, 4.0e7, 1.07, 3.5e4, 9.81, -2.2e5, -2.3e5, 9.0e5, 5.2e5, -5.0e5, -2.6e5)
+    try:
+        fn(constants, np.array([3e-3, 0.03, 0.0]), np.full(16, 1e6), 1e-3, 8, 1, 0.0, 0, np.empty((2, 3)),
+           np.empty((1, 3)), np.empty(1), np.empty(1))
+    except Exception as exc:  # noqa: BLE001 - an older numba: the same loop in Python
+        warnings.warn(f"dea_ros: numba could not compile the realised-response integration ({type(exc).__name__}); "
+                      "running it in Python (same results, slower)", RuntimeWarning, stacklevel=2)
+        return rk4_periods
+    return fn
 
 
 def realised_response(

@@ -149,3 +149,23 @@ def test_switch_without_numba_says_how_to_get_it(monkeypatch):
     monkeypatch.setattr(hbm_kernels, "numba", None)
     with pytest.raises(RuntimeError, match="pip install numba"):
         hbm_kernels.set_enabled(True)
+
+
+@needs_numba
+def test_a_numba_that_cannot_compile_the_kernels_falls_back_to_numpy(a2, monkeypatch):
+    """E.g. an older distribution numba: one warning, then the numpy path with the same answers."""
+    ref = solve_native(a2, SinePeriodic(2500.0, 5.0), 4)
+
+    def broken():
+        raise TypeError("no implementation for this numba")
+
+    monkeypatch.setattr(hbm_kernels, "_self_check", broken)
+    monkeypatch.setattr(hbm_kernels, "_checked", False)
+    monkeypatch.setattr(hbm_kernels, "_enabled", True)
+    monkeypatch.setattr(hbm_kernels, "_failure", None)
+    with pytest.warns(RuntimeWarning, match="using the numpy path"):
+        assert not hbm_kernels.enabled()
+    sol = solve_native(a2, SinePeriodic(2500.0, 5.0), 4)
+    assert scaled_diff(a2, sol.state, ref.state) < 1e-10
+    with pytest.raises(RuntimeError, match="could not run"):
+        hbm_kernels.set_enabled(True)
