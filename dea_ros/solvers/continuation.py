@@ -373,10 +373,16 @@ class _Tracer:
 
     def _bordered(self, z, p, tz, tp):
         omega = math.exp(p)
-        r, jac = self.system.residual_and_jacobian(z, omega, self.u2)
+        sy = self.system
+        if hbm_kernels.enabled():
+            r, jac, dr = hbm_kernels.collocation_residual_jacobian(np.asarray(z, dtype=float), omega, self.u2,
+                                                                   sy.constants, sy.scale, sy.rate_ref, sy.d_theta)
+        else:
+            r, jac = sy.residual_and_jacobian(z, omega, self.u2)
+            dr = sy.d_residual_d_log_omega(z, omega)
         big = np.empty((self.n + 1, self.n + 1))
         big[:self.n, :self.n] = jac
-        big[:self.n, self.n] = self.system.d_residual_d_log_omega(z, omega)
+        big[:self.n, self.n] = dr
         big[self.n, :self.n] = self.wz * tz
         big[self.n, self.n] = tp
         return r, big

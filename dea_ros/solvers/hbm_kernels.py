@@ -89,7 +89,12 @@ def set_enabled(flag: bool) -> bool:
 def jit(fn):
     """``fn`` compiled by numba (no Python objects, cached on disk, IEEE arithmetic as written); ``fn``
     itself without numba."""
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn) if numba is not None else fn
+    if numba is None:
+        return fn
+    try:
+        return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+    except RuntimeError:  # no writable cache location (package and user cache read-only): compile each run
+        return numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
 
 
 _jit = jit
