@@ -35,6 +35,8 @@ setup(
         "pyserial>=3.5",
     ],
     extras_require={
+        # optional compiled kernels of the harmonic balance (dea_ros.solvers.hbm_kernels): same results, faster
+        "fast": ["numba>=0.55"],
         # only for `--method mousai` (the paper's harmonic-balance code, for comparison)
         "mousai": ["mousai==0.3.1"],
         # only for amplifier_node backend uldaq (Measurement Computing DAQ); needs libuldaq (README)

@@ -1,44 +1,70 @@
 """Benchmark of the paper's Table V: steady-state solves for membrane A2, 2.5 kV sine, 0.1-20 Hz.
 
 Measured side by side in one run (these machines are shared and noisy: compare ratios):
-* native HBM (cold start: its own linearised initial guess),
+* native HBM (cold start: its own linearised initial guess), on its default path (the compiled
+  kernels of dea_ros.solvers.hbm_kernels when numba is installed) and on the numpy path,
+* native batched (all frequencies in one call of solve_native_batch), without and with Floquet
+  stability (steady states per second and core),
 * mousai ``hb_time`` (the paper's solver; the same initial guess),
 * forward integration to the periodic steady state (DOP853, rtol 1e-9, from the static
   equilibrium at u = 0; stop when the estimated distance to the periodic orbit, in scaled
   units, is below 1e-7 for two consecutive periods: see dea_ros.solvers.steady_state),
 for N = 2, 4, 6, 8; the accuracy of eq. 25 against a converged integration (tol 1e-9),
 near resonance and away from it; the number of harmonics native HBM needs for 0.1 %;
-and the wall time of a 200-point sweep (0.1-20 Hz) with stability.
+and the wall time of a 200-point sweep (0.1-20 Hz) with stability and bands on both paths.
+
+Times are CPU times of this process (time.process_time; BLAS limited to one thread): on a
+shared machine they are less disturbed by other jobs than wall times; the load average is noted.
 
 Run: python bench/bench_hbm.py [--quick]   (prints markdown; also written to bench/results/hbm.md)
 """
 from __future__ import annotations
 
-import argparse
-import statistics
-import time
-from pathlib import Path
+import os
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from machine_info import machine
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers.continuation import frequency_sweep
-from dea_ros.solvers.harmonic_balance import HarmonicBalanceError, solve_native
-from dea_ros.solvers.inputs import SinePeriodic
-from dea_ros.solvers.mousai_backend import solve_mousai
-from dea_ros.solvers.steady_state import integrate_to_steady_state
+import numpy as np  # noqa: E402
+
+from machine_info import machine  # noqa: E402
+
+from dea_ros.model import preset, static_equilibrium  # noqa: E402
+from dea_ros.solvers import hbm_kernels  # noqa: E402
+from dea_ros.solvers.continuation import frequency_sweep  # noqa: E402
+from dea_ros.solvers.harmonic_balance import HarmonicBalanceError, solve_native, solve_native_batch  # noqa: E402
+from dea_ros.solvers.inputs import SinePeriodic  # noqa: E402
+from dea_ros.solvers.mousai_backend import solve_mousai  # noqa: E402
+from dea_ros.solvers.steady_state import integrate_to_steady_state  # noqa: E402
 
 
 def timed(fn, repeats=1):
     best = []
     out = None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         out = fn()
-        best.append(time.perf_counter() - t0)
+        best.append(time.process_time() - t0)
     return min(best), out
+
+
+def load() -> str:
+    return ", ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def on_path(compiled: bool, fn):
+    """fn() with the compiled kernels on or off (off when numba is missing)."""
+    old = hbm_kernels.enabled()
+    hbm_kernels.set_enabled(compiled and hbm_kernels.available())
+    try:
+        return fn()
+    finally:
+        hbm_kernels.set_enabled(old)
 
 
 def main() -> None:
@@ -51,54 +77,62 @@ def main() -> None:
     freqs = np.linspace(0.1, 20.0, n_freq)
     fi_freqs = freqs[:: max(1, n_freq // (4 if args.quick else 10))]
     harmonics = (2, 4, 6, 8)
-    lines = [f"Machine: {machine()}", ""]
+    compiled = hbm_kernels.enabled()
+    path = f"compiled kernels (numba {hbm_kernels.numba.__version__})" if compiled else \
+        "numpy (numba not installed or disabled)"
+    lines = [f"Machine: {machine()}; load average at start {load()}", "", f"Native default path: {path}", ""]
+    # warm up (numba compiles on first use, or loads its on-disk cache)
+    for n in harmonics:
+        solve_native_batch(p, [SinePeriodic(2500.0, 3.0), SinePeriodic(2500.0, 9.5)], n, stability=True)
+        solve_native(p, SinePeriodic(2500.0, 3.0), n)
 
     # ---- timing, Table V
-    times = {("native", n): [] for n in harmonics} | {("mousai", n): [] for n in harmonics}
-    failures = {("native", n): 0 for n in harmonics} | {("mousai", n): 0 for n in harmonics}
+    names = ("native", "numpy", "mousai")
+    times = {(name, n): [] for name in names for n in harmonics}
+    failures = {(name, n): 0 for name in names for n in harmonics}
     for n in harmonics:
         for f in freqs:
             inp = SinePeriodic(2500.0, float(f))
-            for name, solver in (("native", solve_native), ("mousai", solve_mousai)):
+            for name in names:
+                solver = solve_mousai if name == "mousai" else solve_native
+                run = (lambda: on_path(False, lambda: solver(p, inp, n, stability=False))) if name == "numpy" \
+                    else (lambda: solver(p, inp, n, stability=False))
                 try:
-                    t, _ = timed(lambda: solver(p, inp, n, stability=False), repeats=3 if name == "native" else 1)
+                    t, _ = timed(run, repeats=1 if name == "mousai" else 3)
                     times[(name, n)].append(t)
                 except HarmonicBalanceError:
                     failures[(name, n)] += 1
-    batch_times = {}
-    from dea_ros.solvers.harmonic_balance import solve_native_batch
-
+    batch_times, batch_stab = {}, {}
+    inputs = [SinePeriodic(2500.0, float(f)) for f in freqs]
     for n in harmonics:
-        inputs = [SinePeriodic(2500.0, float(f)) for f in freqs]
-        reps = []
-        for _ in range(3):
-            t0 = time.perf_counter()
-            solve_native_batch(p, inputs, n)
-            reps.append((time.perf_counter() - t0) / len(inputs))
-        batch_times[n] = min(reps)
+        batch_times[n] = timed(lambda: solve_native_batch(p, inputs, n), repeats=3)[0] / len(inputs)
+        batch_stab[n] = timed(lambda: solve_native_batch(p, inputs, n, stability=True), repeats=3)[0] / len(inputs)
     fi_times, fi_ref = [], {}
     for f in fi_freqs:
         t, sol = timed(lambda: integrate_to_steady_state(p, SinePeriodic(2500.0, float(f))))
         fi_times.append(t)
     fi_median = statistics.median(fi_times)
     lines += [
-        f"### Table V: median wall time per steady-state solve (A2, 2.5 kV, {n_freq} frequencies 0.1-20 Hz)",
+        f"### Table V: median CPU time per steady-state solve (A2, 2.5 kV, {n_freq} frequencies 0.1-20 Hz)",
         "",
-        "| N | native HBM [ms] | native batched [ms/solve] | mousai HBM [ms] | forward integration [s] | "
-        "native vs mousai | batched vs mousai | native vs FI | batched vs FI | failures native / mousai |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| N | native HBM [us] | numpy path [us] | batched [us/solve] | batched + Floquet [us/solve] | "
+        "batched + Floquet [solves/s] | mousai HBM [ms] | forward integration [s] | native vs mousai | "
+        "numpy path vs mousai | batched vs mousai | native vs FI | failures native / mousai |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in harmonics:
-        tn = statistics.median(times[("native", n)]) if times[("native", n)] else float("nan")
-        tm = statistics.median(times[("mousai", n)]) if times[("mousai", n)] else float("nan")
-        tb = batch_times[n]
+        med = {name: (statistics.median(times[(name, n)]) if times[(name, n)] else float("nan")) for name in names}
+        tn, tp, tm = med["native"], med["numpy"], med["mousai"]
+        tb, ts = batch_times[n], batch_stab[n]
         lines.append(
-            f"| {n} | {tn * 1e3:.3f} | {tb * 1e3:.3f} | {tm * 1e3:.2f} | {fi_median:.2f} | {tm / tn:.0f}x | "
-            f"{tm / tb:.0f}x | {fi_median / tn:.0f}x | {fi_median / tb:.0f}x | "
-            f"{failures[('native', n)]} / {failures[('mousai', n)]} |"
+            f"| {n} | {tn * 1e6:.0f} | {tp * 1e6:.0f} | {tb * 1e6:.0f} | {ts * 1e6:.0f} | {1.0 / ts:,.0f} | "
+            f"{tm * 1e3:.2f} | {fi_median:.2f} | {tm / tn:.0f}x | {tm / tp:.0f}x | {tm / tb:.0f}x | "
+            f"{fi_median / tn:,.0f}x | {failures[('native', n)]} / {failures[('mousai', n)]} |"
         )
-    lines += ["", "Native: median of single cold solves (each computes its own linearised guess); batched: "
-              f"all {n_freq} frequencies in one stacked Newton (solve_native_batch), wall time / {n_freq}.",
+    lines += ["", "Native: median over the frequencies of the best of 3 single cold solves (each computes its own "
+              "linearised guess), on the default path and on the numpy path; batched: all "
+              f"{n_freq} frequencies in one solve_native_batch call, CPU time / {n_freq} (with Floquet: the "
+              "multipliers of every solution, as attach_floquet).",
               f"Forward integration: median over {len(fi_freqs)} of the frequencies "
               f"({', '.join(f'{f:.2f}' for f in fi_freqs)} Hz).", ""]
 
@@ -109,7 +143,8 @@ def main() -> None:
         fi_ref[f] = integrate_to_steady_state(p, SinePeriodic(2500.0, f), tol=1e-9, rtol=1e-11).displacement_rms(d0)
     lines += ["### Accuracy (eq. 25) against converged forward integration (tol 1e-9)", "",
               "| N | native near resonance (mean / max) | mousai near resonance (mean / max) | "
-              "native away (max) | mousai away (max) |", "|---|---|---|---|---|"]
+              "native away (max) | mousai away (max) | native: default vs numpy path (max difference) |",
+              "|---|---|---|---|---|---|"]
 
     def err(solver, n, fs):
         out = []
@@ -124,28 +159,47 @@ def main() -> None:
     for n in harmonics:
         en, em = err(solve_native, n, near), err(solve_mousai, n, near)
         an, am = err(solve_native, n, away), err(solve_mousai, n, away)
+        numpy_path = on_path(False, lambda: np.concatenate([err(solve_native, n, near), err(solve_native, n, away)]))
+        diff = np.nanmax(np.abs(np.concatenate([en, an]) - numpy_path))
         lines.append(f"| {n} | {np.nanmean(en):.4f} % / {np.nanmax(en):.4f} % | {np.nanmean(em):.3f} % / "
                      f"{np.nanmax(em):.3f} % (failed {np.isnan(em).sum()}) | {np.nanmax(an):.5f} % | "
-                     f"{np.nanmax(am):.4f} % |")
+                     f"{np.nanmax(am):.4f} % | {diff:.1e} % |")
     needed = []
     for f in near + away:
         for n in range(1, 40):
-            s = solve_native(p, SinePeriodic(2500.0, f), n, stability=False)
+            try:
+                s = solve_native(p, SinePeriodic(2500.0, f), n, stability=False)
+            except HarmonicBalanceError:  # N = 1 near resonance: no solution of the truncated equations
+                continue
             if abs(s.displacement_rms(d0) - fi_ref[f]) / fi_ref[f] <= 1e-3:
                 needed.append((f, n))
                 break
     lines += ["", "Harmonics native HBM needs for <= 0.1 % error: " +
               ", ".join(f"{f:g} Hz: N={n}" for f, n in needed), ""]
 
-    # ---- 200-point sweep with stability
-    sweep_times = []
-    for _ in range(3):
-        t, r = timed(lambda: frequency_sweep(p, SinePeriodic(2500.0, 0.1), np.linspace(0.1, 20, 200), n_harmonics=8))
-        sweep_times.append(t)
-    lines += [f"### 200-point sweep 0.1-20 Hz, N = 8, with Floquet stability: median "
-              f"{statistics.median(sweep_times):.3f} s over 3 runs ({r.branch_steps} branch steps, "
-              f"{len(r.points)} points, {len(r.folds)} folds, resonance peak "
-              f"{r.resonance_peak()['frequency_Hz']:.3f} Hz)", ""]
+    # ---- 200-point sweep with stability and bands, on both paths
+    grid = np.linspace(0.1, 20, 200)
+    lines += ["### 200-point sweep 0.1-20 Hz, N = 8, with Floquet stability, bands and realised responses", "",
+              "| path | CPU time, median of 3 [s] | branch steps | points | folds | bands | resonance peak [Hz] |",
+              "|---|---|---|---|---|---|---|"]
+    sweeps = {}
+    for label, flag in (("compiled kernels", True), ("numpy", False)):
+        if flag and not hbm_kernels.available():
+            continue
+        ts = []
+        for _ in range(3):
+            t, r = timed(lambda: on_path(flag, lambda: frequency_sweep(p, SinePeriodic(2500.0, 0.1), grid,
+                                                                       n_harmonics=8)))
+            ts.append(t)
+        sweeps[label] = r
+        lines.append(f"| {label} | {statistics.median(ts):.3f} | {r.branch_steps} | {len(r.points)} | "
+                     f"{len(r.folds)} | {len(r.bands)} | {r.resonance_peak()['frequency_Hz']:.4f} |")
+    if len(sweeps) == 2:
+        a, b = sweeps.values()
+        lines += ["", f"Largest relative difference of d_rms between the paths over the 200 points: "
+                  f"{np.max(np.abs(a.d_rms_m - b.d_rms_m) / b.d_rms_m):.1e}; bands equal: "
+                  f"{[x.describe() for x in a.bands] == [x.describe() for x in b.bands]}"]
+    lines += ["", f"Load average at the end: {load()}", ""]
     text = "\n".join(lines)
     print(text)
     out = Path(__file__).with_name("results")

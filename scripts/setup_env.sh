@@ -32,6 +32,10 @@ if [ -z "${ROS_DISTRO:-}" ]; then
 fi
 pip install --upgrade-strategy only-if-needed -r requirements.txt -r requirements-dev.txt
 pip install --upgrade-strategy only-if-needed -e .
+if [ -z "${ROS_DISTRO:-}" ]; then
+  # the optional compiled kernels (setup.py extra "fast"; a lab PC gets apt's python3-numba by rosdep)
+  pip install --upgrade-strategy only-if-needed "numba>=0.55"
+fi
 "$venv/bin/python" - <<'PY'
 import importlib, sys
 missing = [m for m in ("numpy", "scipy", "yaml", "matplotlib", "mcap", "mcap_ros2", "rclpy", "std_msgs", "sensor_msgs")

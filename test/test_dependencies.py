@@ -31,6 +31,8 @@ ROSDEP_KEYS = {
     # mcap's own dependencies, used for compressed chunks
     "zstandard": "mcap-ros2-support",
     "lz4": "mcap-ros2-support",
+    # optional (see OPTIONAL), but declared for rosdep so that a lab PC gets the compiled kernels
+    "numba": "python3-numba",
 }
 #: ROS packages of both distributions (ros/rosdistro humble/ and jazzy/distribution.yaml)
 ROS_PACKAGES = {"rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "sensor_msgs", "std_srvs",
@@ -40,7 +42,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "se
 PIP_NAMES = {"numpy": "numpy", "scipy": "scipy", "yaml": "PyYAML", "matplotlib": "matplotlib", "serial": "pyserial",
              "mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap", "lz4": "mcap"}
 #: optional: no rosdep key; extras of setup.py, imported only where needed
-OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq"}
+OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba"}
 
 
 def imports(path: Path):

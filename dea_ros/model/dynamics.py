@@ -11,13 +11,14 @@ arrays are ``(3, ...)`` and the Jacobian ``(3, 3, ...)``.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from .parameters import MembraneParameters
 
-__all__ = ["DEAModel"]
+__all__ = ["DEAModel", "state_equation"]
 
 
 @dataclass(frozen=True)
@@ -101,41 +102,15 @@ class DEAModel:
         f = self.rhs_u2(x[0], x[1], x[2], u * u)
         return np.stack(np.broadcast_arrays(*f))
 
+    @functools.cached_property
+    def constants(self) -> tuple:
+        """The model constants as the flat tuple :func:`state_equation` takes (SI units, see the fields)."""
+        return (self.l0_sq, self.force_gain, self.c2, self.k1, self.relax_rate, self.eta2, self.g) \
+            + tuple(self.beta) + tuple(self.gamma)
+
     def rhs_and_jacobian_u2(self, d, eps1, v, u2):
         """f (tuple of 3) and the analytic df/dx (J[i][j], row i = equation) sharing the work."""
-        l0_sq = self.l0_sq
-        q = d * d / l0_sq
-        s = 1.0 + q
-        lam = s**0.5
-        phi = d / (l0_sq * lam)                              # eq. 12, = d lambda / dd
-        strain = lam - 1.0 - eps1
-        si = 1.0 / s
-        b1, b2, b3 = self.beta
-        g1, g2, g3 = self.gamma
-        sigma_h = (b1 + (b2 + b3 * s) * s) * s - (g1 + (g2 + g3 * si) * si) * si
-        dsigma_h_ds = b1 + (2.0 * b2 + 3.0 * b3 * s) * s + (g1 + (2.0 * g2 + 3.0 * g3 * si) * si) * si * si
-        c2u2 = self.c2 * u2
-        stress = c2u2 * s + sigma_h + self.k1 * strain + self.eta2 * phi * v
-        d_over_s = d * si
-        kg = self.force_gain
-        a = self.relax_rate
-        f = (v, a * strain, self.g - kg * d_over_s * stress)
-        dstress_dd = (
-            (c2u2 + dsigma_h_ds) * (2.0 * d / l0_sq)
-            + self.k1 * phi
-            + self.eta2 * v / (l0_sq * lam * s)              # d phi / dd = 1/(l0^2 lambda s)
-        )
-        zero = 0.0 * d
-        jac = (
-            (zero, zero, zero + 1.0),
-            (a * phi, zero - a, zero),
-            (
-                -kg * ((1.0 - q) * si * si * stress + d_over_s * dstress_dd),
-                kg * d_over_s * self.k1,
-                -kg * d_over_s * self.eta2 * phi,
-            ),
-        )
-        return f, jac
+        return state_equation(self.constants, d, eps1, v, u2)
 
     def jacobian_u2(self, d, eps1, v, u2):
         """Analytic df/dx as nested tuples J[i][j] (row i = equation), same shapes as d."""
@@ -174,3 +149,41 @@ class DEAModel:
         sigma = self.hyperelastic_stress(s) + self.c2 * s * u2
         dsigma = (self.hyperelastic_stress_ds(s) + self.c2 * u2) * ds_dd
         return self.params.c1bar_m * ((1.0 - q) / (s * s) * sigma + (d / s) * dsigma)
+
+
+def state_equation(constants, d, eps1, v, u2):
+    """f(x, u) of eq. 18 and the analytic df/dx, from the flat :attr:`DEAModel.constants`.
+
+    Returns ``(f, J)``: f a tuple of 3, J nested tuples J[i][j] (row i = equation), each of the
+    shape of d. Plain arithmetic only, so that the same function runs on floats, on numpy arrays
+    and compiled by numba (:mod:`dea_ros.solvers.hbm_kernels`).
+    """
+    l0_sq, kg, c2, k1, a, eta2, g, b1, b2, b3, g1, g2, g3 = constants
+    q = d * d / l0_sq
+    s = 1.0 + q
+    lam = s**0.5
+    phi = d / (l0_sq * lam)                              # eq. 12, = d lambda / dd
+    strain = lam - 1.0 - eps1
+    si = 1.0 / s
+    sigma_h = (b1 + (b2 + b3 * s) * s) * s - (g1 + (g2 + g3 * si) * si) * si
+    dsigma_h_ds = b1 + (2.0 * b2 + 3.0 * b3 * s) * s + (g1 + (2.0 * g2 + 3.0 * g3 * si) * si) * si * si
+    c2u2 = c2 * u2
+    stress = c2u2 * s + sigma_h + k1 * strain + eta2 * phi * v
+    d_over_s = d * si
+    f = (v, a * strain, g - kg * d_over_s * stress)
+    dstress_dd = (
+        (c2u2 + dsigma_h_ds) * (2.0 * d / l0_sq)
+        + k1 * phi
+        + eta2 * v / (l0_sq * lam * s)                   # d phi / dd = 1/(l0^2 lambda s)
+    )
+    zero = 0.0 * d
+    jac = (
+        (zero, zero, zero + 1.0),
+        (a * phi, zero - a, zero),
+        (
+            -kg * ((1.0 - q) * si * si * stress + d_over_s * dstress_dd),
+            kg * d_over_s * k1,
+            -kg * d_over_s * eta2 * phi,
+        ),
+    )
+    return f, jac

@@ -46,6 +46,7 @@ import numpy as np
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
+from . import hbm_kernels
 from .harmonic_balance import (
     HarmonicBalanceError,
     PeriodicSolution,
@@ -372,24 +373,48 @@ class _Tracer:
 
     def _bordered(self, z, p, tz, tp):
         omega = math.exp(p)
-        r, jac = self.system.residual_and_jacobian(z, omega, self.u2)
+        sy = self.system
+        if hbm_kernels.enabled():
+            r, jac, dr = hbm_kernels.collocation_residual_jacobian(np.asarray(z, dtype=float), omega, self.u2,
+                                                                   sy.constants, sy.scale, sy.rate_ref, sy.d_theta)
+        else:
+            r, jac = sy.residual_and_jacobian(z, omega, self.u2)
+            dr = sy.d_residual_d_log_omega(z, omega)
         big = np.empty((self.n + 1, self.n + 1))
         big[:self.n, :self.n] = jac
-        big[:self.n, self.n] = self.system.d_residual_d_log_omega(z, omega)
+        big[:self.n, self.n] = dr
         big[self.n, :self.n] = self.wz * tz
         big[self.n, self.n] = tp
         return r, big
 
     def tangent(self, z, p, prev_tz, prev_tp):
         _r, big = self._bordered(z, p, prev_tz, prev_tp)
+        return self._unit_tangent(big)
+
+    def _unit_tangent(self, big):
+        """The unit tangent: solution of the bordered system with right-hand side e_n, normalised."""
         rhs = np.zeros(self.n + 1)
         rhs[-1] = 1.0
-        t = np.linalg.solve(big, rhs)
+        if hbm_kernels.enabled():
+            t, ok = hbm_kernels.solve_dense(big, rhs)
+            if not ok:
+                raise np.linalg.LinAlgError("Singular matrix")
+        else:
+            t = np.linalg.solve(big, rhs)
         tz, tp = t[:self.n], t[self.n]
         norm = math.sqrt(self.inner(tz, tp, tz, tp))
         return tz / norm, tp / norm
 
     def correct(self, z_pred, p_pred, tz, tp, max_iter: int = 12):
+        if hbm_kernels.enabled():  # the same corrector, compiled
+            sy = self.system
+            ok, zc, pc, it, big = hbm_kernels.bordered_corrector(
+                np.asarray(z_pred, dtype=float), float(p_pred), np.asarray(tz, dtype=float), float(tp), self.wz,
+                self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, float(self.tol), int(max_iter))
+            if not ok:
+                return None
+            self.last_bordered = big
+            return zc, pc, it
         zc, pc = z_pred.copy(), p_pred
         for it in range(1, max_iter + 1):
             r, big = self._bordered(zc, pc, tz, tp)
@@ -410,12 +435,7 @@ class _Tracer:
 
     def tangent_from_last(self):
         """Unit tangent from the bordered matrix of the last converged corrector (no new Jacobian)."""
-        rhs = np.zeros(self.n + 1)
-        rhs[-1] = 1.0
-        t = np.linalg.solve(self.last_bordered, rhs)
-        tz, tp = t[:self.n], t[self.n]
-        norm = math.sqrt(self.inner(tz, tp, tz, tp))
-        return tz / norm, tp / norm
+        return self._unit_tangent(self.last_bordered)
 
     def solve_at(self, p_target, z_seed):
         return self.system.newton(z_seed, math.exp(p_target), self.u2, tol=self.tol, max_iter=30)

@@ -40,6 +40,7 @@ import numpy as np
 from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
+from . import hbm_kernels
 from .inputs import PeriodicInput
 
 __all__ = [
@@ -235,6 +236,18 @@ def classify_stability(multipliers) -> str:
     return "unstable (saddle)" if np.count_nonzero(real) % 2 else "unstable (real pair)"
 
 
+def newton_error(status: int, iterations: int, residual: float, max_iter: int) -> HarmonicBalanceError:
+    """The error for a Newton outcome code of :func:`hbm_kernels.newton` (the numpy path's messages)."""
+    if status == 3:
+        return HarmonicBalanceError(
+            f"line search failed after {iterations} Newton iterations (scaled residual {residual:.3g})")
+    if status == 4:
+        return HarmonicBalanceError(
+            f"no convergence in {max_iter} Newton iterations (scaled residual {residual:.3g}); "
+            "try more iterations, a better initial guess, or continuation (sweep)")
+    return HarmonicBalanceError(hbm_kernels.STATUS_MESSAGES[status])
+
+
 class CollocationSystem:
     """The collocation equations for M points, in scaled variables, with cached index arrays.
 
@@ -256,6 +269,8 @@ class CollocationSystem:
         # Scaling of df/dx block (i, l): scale_l / (scale_i * rate_ref)
         self.block_scale = (self.scale[None, :] / (self.scale[:, None] * self.rate_ref))[:, :, None]
         self.res_scale = (1.0 / (self.scale * self.rate_ref))[:, None]
+        self.constants = model.constants
+        self.phases = 2.0 * np.pi * np.arange(m) / m    # of the collocation points, rad
 
     def unscale(self, z: np.ndarray) -> np.ndarray:
         return z.reshape(3, self.m) * self.scale[:, None]
@@ -297,8 +312,16 @@ class CollocationSystem:
         """Damped Newton. Returns (z, iterations, scaled residual); raises on failure.
 
         Converged when the full Newton step is below ``tol`` (scaled units, so
-        relative to the typical size of each state).
+        relative to the typical size of each state). Runs the compiled kernel
+        (:func:`hbm_kernels.newton`, the same iteration) when numba is enabled.
         """
+        if hbm_kernels.enabled():
+            z, it, rnorm, status = hbm_kernels.newton(
+                np.array(z0, dtype=float).reshape(-1), float(omega), np.asarray(u2, dtype=float),
+                self.constants, self.scale, self.rate_ref, self.d_theta, float(tol), int(max_iter))
+            if status == 0:
+                return z, it, rnorm
+            raise newton_error(status, it, rnorm, max_iter)
         z = np.array(z0, dtype=float)
         r, jac = self.residual_and_jacobian(z, omega, u2)
         rnorm = float(np.max(np.abs(r)))
@@ -345,6 +368,7 @@ class ModelSetup:
     omega_n: float
     d_rest_m: float
     systems: dict = field(default_factory=dict)
+    equilibria: dict = field(default_factory=dict)
 
     def system(self, m: int) -> CollocationSystem:
         sys_m = self.systems.get(m)
@@ -353,7 +377,19 @@ class ModelSetup:
         return sys_m
 
     def equilibrium_state(self, u2: float) -> np.ndarray:
-        """Static state at constant u^2 by scalar Newton from the rest position (fallback: full search)."""
+        """Static state at constant u^2 by scalar Newton from the rest position (fallback: full search).
+
+        Memoised per u^2 (a sweep at one amplitude needs one equilibrium); returns a copy.
+        """
+        key = float(u2)
+        x = self.equilibria.get(key)
+        if x is None:
+            x = self._equilibrium_state(key)
+            if len(self.equilibria) < 256:
+                self.equilibria[key] = x
+        return x.copy()
+
+    def _equilibrium_state(self, u2: float) -> np.ndarray:
         model = self.model
         weight = self.params.mass_kg * self.params.gravity_m_per_s2
         d = self.d_rest_m
@@ -401,9 +437,11 @@ def linear_guess(params, periodic_input, divisor, m, setup: ModelSetup) -> np.nd
     x_eq = setup.equilibrium_state(u2_mean)
     _f, rows = model.rhs_and_jacobian_u2(x_eq[0], x_eq[1], x_eq[2], u2_mean)
     a = np.array(rows, dtype=float)
+    omega = periodic_input.omega * divisor
+    if hbm_kernels.enabled():
+        return hbm_kernels.linear_guess(x_eq, a, float(model.input_gain_u2(x_eq[0])), u2, u2_mean, float(omega))
     b = np.array([0.0, 0.0, model.input_gain_u2(x_eq[0])])
     w = np.fft.fft(u2 - u2_mean)
-    omega = periodic_input.omega * divisor
     n = np.fft.fftfreq(m, 1.0 / m)
     lhs = 1j * n[:, None, None] * omega * np.eye(3)[None] - a[None]
     dx = np.linalg.solve(lhs, (b[None, :] * w[:, None])[..., None])[..., 0]
@@ -458,8 +496,7 @@ def solve_native(
     divisor, m = response_layout(periodic_input, n_harmonics, use_symmetry)
     system = setup.system(m)
     omega = periodic_input.omega * divisor
-    phases = 2.0 * np.pi * np.arange(m) / m
-    u2 = periodic_input.at_phase(phases / divisor) ** 2
+    u2 = periodic_input.at_phase(system.phases / divisor) ** 2
     total_it = 0
     attempts = []
     if x_guess is not None:
@@ -471,6 +508,19 @@ def solve_native(
     z = None
     err = None
     for kind, z0 in attempts:
+        if kind == "linear" and hbm_kernels.enabled():  # guess and Newton in one compiled call
+            u2_mean = float(np.mean(u2))
+            x_eq = setup.equilibrium_state(u2_mean)
+            z, it, res, status = hbm_kernels.solve_cold(
+                x_eq, float(setup.model.input_gain_u2(x_eq[0])), u2, u2_mean, float(omega), system.constants,
+                system.scale, system.rate_ref, system.d_theta, float(tol), int(max_iter))
+            if status == 0:
+                total_it += it
+                break
+            z = None
+            err = newton_error(status, it, res, max_iter)
+            total_it += max_iter
+            continue
         if kind == "linear":
             z0 = system.to_z(linear_guess(params, periodic_input, divisor, m, setup))
         try:
@@ -606,12 +656,27 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
     omega_resp = 2.0 * np.pi / period
     if scale is None:
         scale = np.ones(3)
+    fast = hbm_kernels.enabled()
+    if fast:
+        state = np.ascontiguousarray(sol.state, dtype=float)
+        scale = np.asarray(scale, dtype=float)
     if steps is None:
-        u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
-        a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
-        rate = float(np.max(np.abs(np.linalg.eigvals(a_nodes))))
+        if fast:
+            u2_nodes = sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
+            rate = float(hbm_kernels.max_spectral_radius(state[None], u2_nodes[None], model.constants, scale, 1)[0])
+        else:
+            u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
+            a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
+            rate = float(np.max(np.abs(np.linalg.eigvals(a_nodes))))
         steps = int(min(8192, max(48, math.ceil(rate * period / 0.5))))
     h = period / steps
+    if fast:  # the same Gauss phases, 2 pi (k + g) / steps
+        phase = np.arange(2 * steps, dtype=float)
+        phase[:steps] += _GAUSS[0]
+        phase[steps:] += _GAUSS[1] - steps
+        phase *= 2.0 * np.pi / steps
+        u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
+        return hbm_kernels.monodromy(state, phase, u2, h, model.constants, scale, 14)
     starts = np.arange(steps) * h
     t_gauss = np.concatenate([starts + _GAUSS[0] * h, starts + _GAUSS[1] * h])
     phase = omega_resp * t_gauss
@@ -662,10 +727,48 @@ def attach_floquet(model: DEAModel, sol: PeriodicSolution, scale: np.ndarray | N
     """
     sol.multipliers = floquet_multipliers(model, sol, scale=scale)
     sol.half_period_multipliers = None
-    if (sol.period_divisor == 1 and sol.n_points >= 5 and sol.periodic_input.u2_half_periodic()
-            and sol.odd_harmonic_ratio() < SYMMETRY_TOL):
+    if _symmetric_full_period(sol):
         sol.half_period_multipliers = floquet_multipliers(model, half_period_view(sol), scale=scale)
     return sol
+
+
+def _symmetric_full_period(sol: PeriodicSolution) -> bool:
+    """A full-period solution that is the symmetric T/2 orbit of a T/2-periodic u^2 (see attach_floquet)."""
+    return bool(sol.period_divisor == 1 and sol.n_points >= 5 and sol.periodic_input.u2_half_periodic()
+                and sol.odd_harmonic_ratio() < SYMMETRY_TOL)
+
+
+def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
+    """:func:`attach_floquet` on many solutions, the eigenvalues in one stacked call (same results)."""
+    if not sols:
+        return
+    # step counts as monodromy_matrix chooses them (h rho <= 0.5, 48 to 8192), all solutions at once
+    scale = np.asarray(scale, dtype=float)
+    states = np.stack([sol.state for sol in sols])
+    m = states.shape[2]
+    u2_nodes = np.stack([sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
+                         for sol in sols])
+    rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
+    mats = np.empty((len(sols), 3, 3))
+    phases = {}
+    for b, sol in enumerate(sols):
+        period = sol.response_period_s
+        steps = int(min(8192, max(48, math.ceil(float(rates[b]) * period / 0.5))))
+        phase = phases.get(steps)
+        if phase is None:  # the Gauss phases 2 pi (k + g) / steps of monodromy_matrix
+            phase = phases[steps] = np.arange(2 * steps, dtype=float)
+            phase[:steps] += _GAUSS[0]
+            phase[steps:] += _GAUSS[1] - steps
+            phase *= 2.0 * np.pi / steps
+        u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
+        mats[b] = hbm_kernels.monodromy(states[b], phase, u2, period / steps, model.constants, scale, 14)
+    mu = np.linalg.eigvals(mats)
+    mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
+    for sol, mu_k in zip(sols, mu):
+        sol.multipliers = mu_k
+        sol.half_period_multipliers = None
+        if _symmetric_full_period(sol):
+            sol.half_period_multipliers = floquet_multipliers(model, half_period_view(sol), scale=scale)
 
 
 def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, periodic_input: PeriodicInput,
@@ -690,18 +793,32 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
         return out
     node_phase = 2.0 * np.pi * np.arange(m) / m
     u2_nodes = periodic_input.at_phase(node_phase / divisor) ** 2
-    rows = model.jacobian_u2(x_all[:, 0], x_all[:, 1], x_all[:, 2], u2_nodes[None, :])
-    a_nodes = np.empty((nb, m, 3, 3))
-    for i in range(3):
-        for j in range(3):
-            a_nodes[:, :, i, j] = rows[i][j] * (scale[j] / scale[i])
-    rate = np.max(np.abs(np.linalg.eigvals(a_nodes[:, ::3])), axis=(1, 2))  # rho(A) along the orbit
+    fast = hbm_kernels.enabled()
+    if fast:
+        scale = np.asarray(scale, dtype=float)
+        x_all = np.ascontiguousarray(x_all)
+        rate = hbm_kernels.max_spectral_radius(x_all, np.broadcast_to(u2_nodes, (nb, m)), model.constants, scale, 3)
+    else:
+        rows = model.jacobian_u2(x_all[:, 0], x_all[:, 1], x_all[:, 2], u2_nodes[None, :])
+        a_nodes = np.empty((nb, m, 3, 3))
+        for i in range(3):
+            for j in range(3):
+                a_nodes[:, :, i, j] = rows[i][j] * (scale[j] / scale[i])
+        rate = np.max(np.abs(np.linalg.eigvals(a_nodes[:, ::3])), axis=(1, 2))  # rho(A) along the orbit
     need = np.clip(np.ceil(rate * periods / h_rho), min_steps, 8192)
     steps_of = (2 ** np.ceil(np.log2(need))).astype(int)
     for steps in np.unique(steps_of):
         idx = np.nonzero(steps_of == steps)[0]
         frac = np.arange(steps) / steps
         phase = 2.0 * np.pi * np.concatenate([frac + _GAUSS[0] / steps, frac + _GAUSS[1] / steps])
+        if fast:
+            u2 = periodic_input.at_phase(phase / divisor) ** 2
+            mats = np.stack([hbm_kernels.monodromy(x_all[b], phase, u2, float(periods[b] / steps), model.constants,
+                                                   scale, 12) for b in idx])
+            mu = np.linalg.eigvals(mats)
+            order = np.argsort(-np.abs(mu), axis=1)
+            out[idx] = np.take_along_axis(mu, order, axis=1)
+            continue
         pmat = periodic_interpolation_matrix(m, phase)                     # (2S, M)
         x = x_all[idx] @ pmat.T                                            # (b, 3, 2S)
         u2 = periodic_input.at_phase(phase / divisor) ** 2
@@ -729,7 +846,7 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     return out
 
 
-__all__ += ["resample_state", "monodromy_matrix", "linear_guess", "response_layout", "half_period_view",
+__all__ += ["newton_error", "resample_state", "monodromy_matrix", "linear_guess", "response_layout", "half_period_view",
             "SYMMETRY_TOL"]
 
 
@@ -789,10 +906,13 @@ def solve_native_batch(
     u2 = np.stack([inp.at_phase(phases / divisor) ** 2 for inp in inputs])          # (B, M)
     omega = np.array([inp.omega * divisor for inp in inputs])                       # (B,)
     if x_guesses is None:
-        x0 = _linear_guess_batch(setup, u2, omega, m)
+        x0 = None if hbm_kernels.enabled() else _linear_guess_batch(setup, u2, omega, m)
     else:
         x0 = np.stack([g if np.shape(g) == (3, m) else resample_state(np.asarray(g, float), m)
                        for g in x_guesses])
+    if hbm_kernels.enabled():
+        return _solve_batch_compiled(params, setup, system, inputs, n_harmonics, divisor, m, u2, omega, x0, tol,
+                                     max_iter, use_symmetry, stability, t0)
     z = x0 / system.scale[None, :, None]                                            # (B, 3, M)
     dmat_t = system.d_theta.T
     res_scale = system.res_scale[None]                                               # (1, 3, 1)
@@ -859,6 +979,36 @@ def solve_native_batch(
         keep = accepted & ~done
         active, r, jac, rnorm = active[keep], r_new[keep], jac_new[keep], rn_new[keep]
     failed[active] = True  # out of iterations
+    return _batch_results(params, setup, system, inputs, n_harmonics, divisor, zf, iterations, residual, failed,
+                          tol, max_iter, use_symmetry, stability, t0)
+
+
+def _solve_batch_compiled(params, setup, system, inputs, n_harmonics, divisor, m, u2, omega, x0, tol, max_iter,
+                          use_symmetry, stability, t0):
+    """:func:`solve_native_batch` with the compiled kernel: the same Newton iteration item by item."""
+    nb = len(inputs)
+    u2_mean = np.mean(u2, axis=1)
+    if x0 is None:
+        x_eq = np.empty((nb, 3))
+        for value in np.unique(u2_mean):  # one equilibrium per distinct mean (one for equal amplitudes)
+            x_eq[u2_mean == value] = setup.equilibrium_state(float(value))
+        b3 = np.asarray(setup.model.input_gain_u2(x_eq[:, 0]), dtype=float)
+        z0 = np.empty((0, 3 * m))
+    else:
+        x_eq, b3 = np.empty((0, 3)), np.empty(0)
+        z0 = np.ascontiguousarray((x0 / system.scale[None, :, None]).reshape(nb, 3 * m))
+    zf, iterations, residual, status = hbm_kernels.solve_batch(
+        z0, x_eq, b3, np.ascontiguousarray(u2), u2_mean, np.asarray(omega, dtype=float), system.constants,
+        system.scale, system.rate_ref, system.d_theta, float(tol), int(max_iter))
+    return _batch_results(params, setup, system, inputs, n_harmonics, divisor, zf, iterations, residual,
+                          status != 0, tol, max_iter, use_symmetry, stability, t0)
+
+
+def _batch_results(params, setup, system, inputs, n_harmonics, divisor, zf, iterations, residual, failed, tol,
+                   max_iter, use_symmetry, stability, t0):
+    """Solutions of a batch (failed items re-solved alone), with stability on request."""
+    nb = len(inputs)
+    m = system.m
     results = []
     for k, inp in enumerate(inputs):
         if failed[k]:
@@ -871,9 +1021,13 @@ def solve_native_batch(
                 n_harmonics=int(n_harmonics), method="native-batch", iterations=int(iterations[k]),
                 residual=float(residual[k]), wall_time_s=0.0,
             )
-        if stability:
-            attach_floquet(setup.model, sol, scale=setup.scale)
         results.append(sol)
+    if stability:
+        if hbm_kernels.enabled():
+            _attach_floquet_all(setup.model, results, setup.scale)
+        else:
+            for sol in results:
+                attach_floquet(setup.model, sol, scale=setup.scale)
     wall = time.perf_counter() - t0
     for sol in results:
         sol.extra["batch_wall_time_s"] = wall

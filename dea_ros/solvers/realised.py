@@ -23,17 +23,20 @@ windows is several per cent in the A2 torus band). Cost: ~5 us per step on plain
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..model.dynamics import DEAModel
 from ..model.parameters import MembraneParameters
+from . import hbm_kernels
 from .inputs import PeriodicInput
 
-__all__ = ["RealisedResponse", "realised_response", "SETTLE_PERIODS", "WINDOW_PERIODS"]
+__all__ = ["RealisedResponse", "realised_response", "rk4_periods", "SETTLE_PERIODS", "WINDOW_PERIODS"]
 
 #: Default number of excitation periods integrated before the measurement window.
 SETTLE_PERIODS = 100
@@ -72,6 +75,73 @@ class RealisedResponse:
         }
 
 
+def rk4_periods(constants, x0, u2_tab, h, steps, total, d0_m, settle_periods, starts, halves, per_period_ms,
+                per_period_mean):
+    """Classical RK4 over ``total`` periods of ``steps`` steps (h s each) from x0, the model of eq. 18.
+
+    ``u2_tab`` holds u^2 at the 2 * steps node and midpoint phases of a period. Fills ``starts``
+    (total + 1, 3: the state at each period start), ``halves`` (the state half a period in), and,
+    after ``settle_periods``, the mean of (d - d0)^2 and of d per period. Returns (period index
+    where d left |d| < 1 m, or -1; the last d). Plain loops: run as it is, or compiled by numba
+    (:func:`hbm_kernels.jit`), with the same results.
+    """
+    l0_sq, kg, c2, k1, rr, eta2, g, b1, b2, b3, g1, g2, g3 = constants
+
+    def f(d, e, v, u2):
+        s = 1.0 + d * d / l0_sq
+        lam = math.sqrt(s)
+        si = 1.0 / s
+        strain = lam - 1.0 - e
+        stress = (c2 * u2 * s + (b1 + (b2 + b3 * s) * s) * s - (g1 + (g2 + g3 * si) * si) * si
+                  + k1 * strain + eta2 * d / (l0_sq * lam) * v)
+        return v, rr * strain, g - kg * d * si * stress
+
+    d, e, v = float(x0[0]), float(x0[1]), float(x0[2])
+    h2, h6 = 0.5 * h, h / 6.0
+    for n in range(total):
+        starts[n, 0], starts[n, 1], starts[n, 2] = d, e, v
+        acc = 0.0
+        acc_d = 0.0
+        for k in range(steps):
+            if k == steps // 2:
+                halves[n, 0], halves[n, 1], halves[n, 2] = d, e, v
+            dd = d - d0_m
+            acc += dd * dd
+            acc_d += d
+            u_a = u2_tab[2 * k]
+            u_m = u2_tab[2 * k + 1]
+            u_b = u2_tab[(2 * k + 2) % (2 * steps)]
+            k1d, k1e, k1v = f(d, e, v, u_a)
+            k2d, k2e, k2v = f(d + h2 * k1d, e + h2 * k1e, v + h2 * k1v, u_m)
+            k3d, k3e, k3v = f(d + h2 * k2d, e + h2 * k2e, v + h2 * k2v, u_m)
+            k4d, k4e, k4v = f(d + h * k3d, e + h * k3e, v + h * k3v, u_b)
+            d += h6 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d)
+            e += h6 * (k1e + 2.0 * k2e + 2.0 * k3e + k4e)
+            v += h6 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
+        if not (abs(d) < 1.0):
+            return n, d
+        if n >= settle_periods:
+            per_period_ms[n - settle_periods] = acc / steps      # rectangle rule: exact for the period
+            per_period_mean[n - settle_periods] = acc_d / steps
+    starts[total, 0], starts[total, 1], starts[total, 2] = d, e, v
+    return -1, d
+
+
+@functools.lru_cache(maxsize=1)
+def _rk4_compiled():
+    """:func:`rk4_periods` compiled (checked on one step), or itself if this numba cannot compile it."""
+    fn = hbm_kernels.jit(rk4_periods)
+    constants = (2.9e-4, 0.02, -0.019, 4.0e7, 1.07, 3.5e4, 9.81, -2.2e5, -2.3e5, 9.0e5, 5.2e5, -5.0e5, -2.6e5)
+    try:
+        fn(constants, np.array([3e-3, 0.03, 0.0]), np.full(16, 1e6), 1e-3, 8, 1, 0.0, 0, np.empty((2, 3)),
+           np.empty((1, 3)), np.empty(1), np.empty(1))
+    except Exception as exc:  # noqa: BLE001 - an older numba: the same loop in Python
+        warnings.warn(f"dea_ros: numba could not compile the realised-response integration ({type(exc).__name__}); "
+                      "running it in Python (same results, slower)", RuntimeWarning, stacklevel=2)
+        return rk4_periods
+    return fn
+
+
 def realised_response(
     params: MembraneParameters,
     periodic_input: PeriodicInput,
@@ -98,54 +168,23 @@ def realised_response(
     # u^2 at the RK4 stage phases: node k at 2k, midpoint at 2k + 1 (2 * steps entries per period)
     phase = np.pi * np.arange(2 * steps) / steps
     u2_tab = [float(v) for v in periodic_input.at_phase(phase) ** 2]
-    l0_sq = model.l0_sq
-    kg, c2, k1, rr, eta2, g = model.force_gain, model.c2, model.k1, model.relax_rate, model.eta2, model.g
-    b1, b2, b3 = model.beta
-    g1, g2, g3 = model.gamma
-
-    def f(d, e, v, u2):
-        s = 1.0 + d * d / l0_sq
-        lam = math.sqrt(s)
-        si = 1.0 / s
-        strain = lam - 1.0 - e
-        stress = (c2 * u2 * s + (b1 + (b2 + b3 * s) * s) * s - (g1 + (g2 + g3 * si) * si) * si
-                  + k1 * strain + eta2 * d / (l0_sq * lam) * v)
-        return v, rr * strain, g - kg * d * si * stress
-
-    d, e, v = (float(c) for c in np.asarray(x0, float).reshape(3))
     total = settle_periods + window_periods
+    d = float(np.asarray(x0, float).reshape(3)[0])
     scale = max(abs(d), 1e-3 * params.electrode_width_m)
+    l0_sq = model.l0_sq
     per_period_ms = np.empty(window_periods)
     per_period_mean = np.empty(window_periods)
     starts = np.empty((total + 1, 3))
     halves = np.empty((total, 3))
-    h2, h6 = 0.5 * h, h / 6.0
-    for n in range(total):
-        starts[n] = (d, e, v)
-        acc = 0.0
-        acc_d = 0.0
-        for k in range(steps):
-            if k == steps // 2:
-                halves[n] = (d, e, v)
-            dd = d - d0_m
-            acc += dd * dd
-            acc_d += d
-            u_a = u2_tab[2 * k]
-            u_m = u2_tab[2 * k + 1]
-            u_b = u2_tab[(2 * k + 2) % (2 * steps)]
-            k1d, k1e, k1v = f(d, e, v, u_a)
-            k2d, k2e, k2v = f(d + h2 * k1d, e + h2 * k1e, v + h2 * k1v, u_m)
-            k3d, k3e, k3v = f(d + h2 * k2d, e + h2 * k2e, v + h2 * k2v, u_m)
-            k4d, k4e, k4v = f(d + h * k3d, e + h * k3e, v + h * k3v, u_b)
-            d += h6 * (k1d + 2.0 * k2d + 2.0 * k3d + k4d)
-            e += h6 * (k1e + 2.0 * k2e + 2.0 * k3e + k4e)
-            v += h6 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v)
-        if not (abs(d) < 1.0):
-            raise FloatingPointError(f"integration diverged at {periodic_input.frequency_Hz:g} Hz (d = {d})")
-        if n >= settle_periods:
-            per_period_ms[n - settle_periods] = acc / steps      # rectangle rule: exact for the period
-            per_period_mean[n - settle_periods] = acc_d / steps
-    starts[total] = (d, e, v)
+    if hbm_kernels.enabled():
+        run = _rk4_compiled()
+        u2_arg = np.array(u2_tab)
+    else:
+        run, u2_arg = rk4_periods, u2_tab
+    diverged, d = run(model.constants, np.asarray(x0, float).reshape(3), u2_arg, h, steps, total, float(d0_m),
+                      settle_periods, starts, halves, per_period_ms, per_period_mean)
+    if diverged >= 0:
+        raise FloatingPointError(f"integration diverged at {periodic_input.frequency_Hz:g} Hz (d = {d})")
     rms_each = np.sqrt(per_period_ms)
     # What repeats: the state every q periods (q = 1, 2, 4) over the last 8 periods.
     sc = np.array([scale, max(scale * scale / l0_sq, 1e-9), scale * 2.0 * np.pi / period])

@@ -1,0 +1,635 @@
+"""Compiled inner loops of the native harmonic balance (optional numba; same answers as the numpy path).
+
+A collocation Newton solve of N = 4 is 27 unknowns and a few thousand floating-point operations;
+written with numpy it costs hundreds of microseconds of call overhead. These functions are the
+same algorithms written as plain loops: with numba installed (``pip install dea_ros[fast]``, or
+Ubuntu's ``python3-numba``) they are compiled on first use (cached on disk) and the solvers in
+:mod:`dea_ros.solvers.harmonic_balance` and :mod:`dea_ros.solvers.continuation` call them;
+without numba, or with the environment variable ``DEA_ROS_NUMBA=0``, the solvers keep their
+vectorised numpy path. Both paths implement the same equations (collocation residual and
+Jacobian of eq. 16, damped Newton, linearised initial guess, 4th-order Magnus monodromy) and
+agree to rounding (checked by test/solvers/test_hbm_kernels.py).
+
+The model is :func:`dea_ros.model.dynamics.state_equation` compiled as it is (one definition).
+Every kernel works in the scaled variables of
+:class:`~dea_ros.solvers.harmonic_balance.CollocationSystem`: z = x / scale, state-major.
+"""
+from __future__ import annotations
+
+import math
+import os
+import warnings
+
+import numpy as np
+
+from ..model.dynamics import state_equation
+
+
+def _import_numba():
+    """numba, or None when it is not installed (it is optional: the numpy path needs nothing)."""
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - depends on the installation
+        return None
+    return numba
+
+
+numba = _import_numba()
+
+__all__ = [
+    "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
+    "collocation_residual_jacobian", "newton", "bordered_corrector", "solve_dense",
+    "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
+    "monodromy", "GAUSS_NODES",
+]
+
+_enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
+_checked = False
+_failure = None   # why the kernels could not run (then the numpy path is used)
+
+
+def available() -> bool:
+    """True when numba is installed (the kernels can be compiled)."""
+    return numba is not None
+
+
+def enabled() -> bool:
+    """True when the solvers use the compiled kernels (numba installed, not disabled, and they compile).
+
+    The first call compiles (or loads from the on-disk cache) every kernel and runs it on a small
+    problem; a numba too old for one of them is reported once (a warning) and the numpy path is
+    used from then on.
+    """
+    global _enabled, _checked, _failure
+    if _enabled and not _checked:
+        _checked = True
+        try:
+            _self_check()
+        except Exception as exc:  # noqa: BLE001 - any numba failure: fall back, say why
+            _enabled = False
+            _failure = (f"numba {getattr(numba, '__version__', '?')} could not run the harmonic-balance kernels "
+                        f"({type(exc).__name__}: {str(exc)[:300]})")
+            warnings.warn(f"dea_ros: {_failure}; using the numpy path (same results, slower)", RuntimeWarning,
+                          stacklevel=2)
+    return _enabled
+
+
+def set_enabled(flag: bool) -> bool:
+    """Switch the compiled kernels on or off (e.g. to compare with the numpy path); returns the old state."""
+    global _enabled
+    if flag and numba is None:
+        raise RuntimeError("numba is not installed: pip install numba (or apt install python3-numba)")
+    old = enabled()
+    if flag and _failure is not None:
+        raise RuntimeError(_failure)
+    _enabled = bool(flag)
+    return old
+
+
+def jit(fn):
+    """``fn`` compiled by numba (no Python objects, cached on disk, IEEE arithmetic as written); ``fn``
+    itself without numba."""
+    if numba is None:
+        return fn
+    try:
+        return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
+    except RuntimeError:  # no writable cache location (package and user cache read-only): compile each run
+        return numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
+
+
+_jit = jit
+_model = jit(state_equation)
+
+#: Newton outcome codes returned by :func:`newton` (0 converged) and their messages.
+STATUS_MESSAGES = {
+    1: "singular harmonic-balance Jacobian (a fold?)",
+    2: "harmonic-balance Newton step is not finite",
+    3: "line search failed",
+    4: "no convergence",
+}
+
+#: Gauss-Legendre nodes of the 2-point rule on [0, 1] (4th-order Magnus).
+GAUSS_NODES = (0.5 - math.sqrt(3.0) / 6.0, 0.5 + math.sqrt(3.0) / 6.0)
+
+
+@_jit
+def _max_abs(v):
+    """max |v_i|, NaN if any entry is NaN (as numpy's max)."""
+    out = 0.0
+    for i in range(v.shape[0]):
+        a = abs(v[i])
+        if a > out or a != a:
+            out = a
+            if a != a:
+                return a
+    return out
+
+
+@_jit
+def _solve_inplace(a, b):
+    """Solve a x = b by Gaussian elimination with partial pivoting (a, b overwritten; x in b).
+
+    Returns False on an exactly zero pivot (what LAPACK reports as singular).
+    """
+    n = a.shape[0]
+    for col in range(n):
+        p = col
+        best = abs(a[col, col])
+        for row in range(col + 1, n):
+            v = abs(a[row, col])
+            if v > best:
+                best = v
+                p = row
+        if best == 0.0:
+            return False
+        if p != col:
+            for k in range(col, n):
+                t = a[col, k]
+                a[col, k] = a[p, k]
+                a[p, k] = t
+            t = b[col]
+            b[col] = b[p]
+            b[p] = t
+        piv = a[col, col]
+        for row in range(col + 1, n):
+            fct = a[row, col] / piv
+            if fct != 0.0:
+                for k in range(col + 1, n):
+                    a[row, k] -= fct * a[col, k]
+                b[row] -= fct * b[col]
+    for row in range(n - 1, -1, -1):
+        acc = b[row]
+        for k in range(row + 1, n):
+            acc -= a[row, k] * b[k]
+        b[row] = acc / a[row, row]
+    return True
+
+
+#: Above this size the linear systems go to LAPACK (faster blocked code); below, the loop above (less overhead).
+LAPACK_FROM = 40
+
+
+@_jit
+def _solve_into(a, b):
+    """Solve a x = b into b (a may be overwritten); False when a is singular."""
+    if a.shape[0] < LAPACK_FROM:
+        return _solve_inplace(a, b)
+    try:
+        x = np.linalg.solve(a, b)
+    except Exception:  # numba raises on an exactly singular matrix
+        return False
+    b[:] = x
+    return True
+
+
+@_jit
+def solve_dense(a, b):
+    """x with a x = b (copies; partial pivoting); ok False when a is singular."""
+    aa = a.copy()
+    x = b.copy()
+    ok = _solve_into(aa, x)
+    return x, ok
+
+
+@_jit
+def _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, want_jac):
+    """Scaled collocation residual into r (3M,), Jacobian into jac, omega X D^T (scaled) into drate."""
+    m = u2.shape[0]
+    x = np.empty((3, m))
+    for i in range(3):
+        for k in range(m):
+            x[i, k] = z[i * m + k] * scale[i]
+    res_scale = np.empty(3)
+    block = np.empty((3, 3))
+    for i in range(3):
+        res_scale[i] = 1.0 / (scale[i] * rate_ref)
+        for col in range(3):
+            block[i, col] = scale[col] / (scale[i] * rate_ref)
+    if want_jac:
+        wr = omega / rate_ref
+        jac[:, :] = 0.0
+        for i in range(3):
+            for k in range(m):
+                for j in range(m):
+                    jac[i * m + k, i * m + j] = wr * dmat[k, j]
+    a = np.empty((3, 3))
+    f = np.empty(3)
+    for k in range(m):
+        f[0], f[1], f[2] = _unpack(constants, x[0, k], x[1, k], x[2, k], u2[k], a)
+        for i in range(3):
+            acc = 0.0
+            for j in range(m):
+                acc += x[i, j] * dmat[k, j]
+            rate = omega * acc
+            drate[i * m + k] = rate * res_scale[i]
+            r[i * m + k] = (rate - f[i]) * res_scale[i]
+            if want_jac:
+                for col in range(3):
+                    jac[i * m + k, col * m + k] -= a[i, col] * block[i, col]
+
+
+@_jit
+def collocation_residual_jacobian(z, omega, u2, constants, scale, rate_ref, dmat):
+    """(r, jac, dr/dln omega) of :meth:`CollocationSystem.residual_and_jacobian` at z (scaled)."""
+    n = z.shape[0]
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    drate = np.empty(n)
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    return r, jac, drate
+
+
+@_jit
+def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Damped Newton of :meth:`CollocationSystem.newton`: (z, iterations, scaled residual, status).
+
+    status 0: converged (full step below tol); otherwise a key of :data:`STATUS_MESSAGES`.
+    """
+    n = z0.shape[0]
+    z = z0.copy()
+    z_new = np.empty(n)
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    r_new = np.empty(n)
+    jac_new = np.empty((n, n))
+    drate = np.empty(n)
+    work = np.empty((n, n))
+    step = np.empty(n)
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    rnorm = _max_abs(r)
+    for it in range(1, max_iter + 1):
+        work[:, :] = jac
+        step[:] = r
+        if not _solve_into(work, step):
+            return z, it, rnorm, 1
+        snorm = _max_abs(step)
+        if not np.isfinite(snorm):
+            return z, it, rnorm, 2
+        lam = 1.0
+        ok = False
+        rn_new = rnorm
+        for _ls in range(12):
+            for i in range(n):
+                z_new[i] = z[i] - lam * step[i]
+            _fill(z_new, omega, u2, constants, scale, rate_ref, dmat, r_new, jac_new, drate, True)
+            rn_new = _max_abs(r_new)
+            if np.isfinite(rn_new) and (rn_new < rnorm or rn_new < 1e-13 or lam * snorm < tol):
+                ok = True
+                break
+            lam *= 0.5
+        if not ok:
+            return z, it, rnorm, 3
+        z, z_new = z_new, z
+        r, r_new = r_new, r
+        jac, jac_new = jac_new, jac
+        rnorm = rn_new
+        if lam == 1.0 and snorm <= tol:
+            return z, it, rnorm, 0
+    return z, max_iter, rnorm, 4
+
+
+@_jit
+def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, bordered).
+
+    Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0; gives up (ok False) on a
+    singular matrix, a non-finite or > 10 step, or after max_iter; converged when the step is
+    below max(tol, 1e-9). ``bordered`` is the matrix at the last iterate (the next tangent's).
+    """
+    n = z_pred.shape[0]
+    zc = z_pred.copy()
+    pc = p_pred
+    r = np.empty(n)
+    jac = np.empty((n, n))
+    drate = np.empty(n)
+    big = np.empty((n + 1, n + 1))
+    work = np.empty((n + 1, n + 1))
+    rhs = np.empty(n + 1)
+    for it in range(1, max_iter + 1):
+        omega = math.exp(pc)
+        _fill(zc, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+        g = 0.0
+        for i in range(n):
+            g += tz[i] * (zc[i] - z_pred[i])
+        g = wz * g + tp * (pc - p_pred)
+        big[:n, :n] = jac
+        big[:n, n] = drate
+        for i in range(n):
+            big[n, i] = wz * tz[i]
+        big[n, n] = tp
+        work[:, :] = big
+        rhs[:n] = r
+        rhs[n] = g
+        if not _solve_into(work, rhs):
+            return False, zc, pc, it, big
+        for i in range(n):
+            zc[i] -= rhs[i]
+        pc -= rhs[n]
+        snorm = _max_abs(rhs)
+        if not np.isfinite(snorm) or snorm > 10.0:
+            return False, zc, pc, it, big
+        if snorm < max(tol, 1e-9):
+            return True, zc, pc, it, big
+    return False, zc, pc, max_iter, big
+
+
+@_jit
+def linear_guess(x_eq, a, b3, u2, u2_mean, omega):
+    """Periodic response (3, M) of x' = A (x - x_eq) + b (u2 - mean) with b = (0, 0, b3), by a DFT.
+
+    ``a`` is df/dx at the equilibrium x_eq under the mean u^2 (:func:`harmonic_balance.linear_guess`).
+    """
+    m = u2.shape[0]
+    nh = (m - 1) // 2
+    out = np.empty((3, m))
+    for i in range(3):
+        for k in range(m):
+            out[i, k] = 0.0
+    lhs = np.empty((3, 3), dtype=np.complex128)
+    rhs = np.empty(3, dtype=np.complex128)
+    for n in range(nh + 1):
+        w = 0.0 + 0.0j
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            w += (u2[k] - u2_mean) * complex(math.cos(ang), -math.sin(ang))
+        for i in range(3):
+            for j in range(3):
+                lhs[i, j] = -a[i, j]
+            lhs[i, i] += 1j * n * omega
+            rhs[i] = 0.0
+        rhs[2] = b3 * w
+        if not _solve_inplace(lhs, rhs):
+            for i in range(3):
+                rhs[i] = 0.0
+        weight = (1.0 if n == 0 else 2.0) / m
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            e = complex(math.cos(ang), math.sin(ang))
+            for i in range(3):
+                out[i, k] += weight * (rhs[i] * e).real
+    for i in range(3):
+        for k in range(m):
+            out[i, k] += x_eq[i]
+    return out
+
+
+@_jit
+def solve_cold(x_eq, b3, u2, u2_mean, omega, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Linearised guess (:func:`linear_guess`) then :func:`newton`: (z, iterations, residual, status)."""
+    am = np.empty((3, 3))
+    _unpack(constants, x_eq[0], x_eq[1], x_eq[2], u2_mean, am)
+    x0 = linear_guess(x_eq, am, b3, u2, u2_mean, omega)
+    m = u2.shape[0]
+    z0 = np.empty(3 * m)
+    for i in range(3):
+        for k in range(m):
+            z0[i * m + k] = x0[i, k] / scale[i]
+    return newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter)
+
+
+@_jit
+def solve_batch(z0, x_eq, b3, u2, u2_mean, omega, constants, scale, rate_ref, dmat, tol, max_iter):
+    """Many independent solves: from z0 (B, 3M) or, when z0 has no rows, from the linearised guesses
+    about x_eq (B, 3) with gains b3 (B,); u2 (B, M), u2_mean (B,), omega (B,).
+    Returns z (B, 3M), iterations (B,), residuals (B,), statuses (B,)."""
+    nb, m = u2.shape
+    z = np.empty((nb, 3 * m))
+    its = np.empty(nb, dtype=np.int64)
+    res = np.empty(nb)
+    status = np.empty(nb, dtype=np.int64)
+    for b in range(nb):
+        if z0.shape[0] == 0:
+            zb, itb, rb, sb = solve_cold(x_eq[b], b3[b], u2[b], u2_mean[b], omega[b], constants, scale, rate_ref,
+                                         dmat, tol, max_iter)
+        else:
+            zb, itb, rb, sb = newton(z0[b], omega[b], u2[b], constants, scale, rate_ref, dmat, tol, max_iter)
+        z[b] = zb
+        its[b] = itb
+        res[b] = rb
+        status[b] = sb
+    return z, its, res, status
+
+
+@_jit
+def _scaled_jacobian(constants, d, e, v, u2, scale, h, out):
+    """h S^-1 (df/dx) S at one point into out (3, 3)."""
+    _unpack(constants, d, e, v, u2, out)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] *= h * scale[j] / scale[i]
+
+
+@_jit
+def _unpack(constants, d, e, v, u2, jac):
+    """df/dx at one point into jac (3, 3); returns f as three floats (static tuple indices only)."""
+    f, a = _model(constants, d, e, v, u2)
+    (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = a
+    jac[0, 0], jac[0, 1], jac[0, 2] = j00, j01, j02
+    jac[1, 0], jac[1, 1], jac[1, 2] = j10, j11, j12
+    jac[2, 0], jac[2, 1], jac[2, 2] = j20, j21, j22
+    return f[0], f[1], f[2]
+
+
+@_jit
+def max_spectral_radius(states, u2_nodes, constants, scale, every):
+    """Largest |eigenvalue| of S^-1 (df/dx) S over the nodes 0, every, 2 every, ... of each state.
+
+    ``states`` (B, 3, M), ``u2_nodes`` (B, M); returns (B,) (the step control of the Magnus scheme).
+    """
+    nb, _three, m = states.shape
+    out = np.empty(nb)
+    a = np.empty((3, 3))
+    for b in range(nb):
+        best = 0.0
+        for k in range(0, m, every):
+            _scaled_jacobian(constants, states[b, 0, k], states[b, 1, k], states[b, 2, k], u2_nodes[b, k],
+                             scale, 1.0, a)
+            best = max(best, spectral_radius3(a))
+        out[b] = best
+    return out
+
+
+@_jit
+def _cbrt(x):
+    return math.copysign(abs(x) ** (1.0 / 3.0), x)
+
+
+@_jit
+def spectral_radius3(a):
+    """max |eigenvalue| of a real 3x3 matrix, from its characteristic cubic (Cardano / trigonometric)."""
+    tr = a[0, 0] + a[1, 1] + a[2, 2]
+    minors = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] + a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
+              + a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
+    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
+           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
+    # lambda^3 + c2 lambda^2 + c1 lambda + c0 with c2 = -tr, c1 = minors, c0 = -det; lambda = t + tr / 3
+    c2 = -tr
+    shift = -c2 / 3.0
+    p = minors - c2 * c2 / 3.0
+    q = 2.0 * c2 ** 3 / 27.0 - c2 * minors / 3.0 - det
+    disc = 0.25 * q * q + p * p * p / 27.0
+    if disc > 0.0:
+        sq = math.sqrt(disc)
+        u = _cbrt(-0.5 * q + sq)
+        v = _cbrt(-0.5 * q - sq)
+        real_root = abs(u + v + shift)
+        re = -0.5 * (u + v) + shift
+        im = 0.5 * math.sqrt(3.0) * (u - v)
+        return max(real_root, math.sqrt(re * re + im * im))
+    r = math.sqrt(max(-p / 3.0, 0.0))
+    if r == 0.0:
+        return abs(shift)
+    cos_arg = min(1.0, max(-1.0, -0.5 * q / (r * r * r)))
+    phi = math.acos(cos_arg)
+    best = 0.0
+    for k in range(3):
+        best = max(best, abs(2.0 * r * math.cos((phi + 2.0 * math.pi * k) / 3.0) + shift))
+    return best
+
+
+@_jit
+def _t9(a0, a1, a2, a3, a4, a5, a6, a7, a8):
+    return (a0, a1, a2, a3, a4, a5, a6, a7, a8)
+
+
+@_jit
+def _mul9(a, b):
+    """Product of 3x3 matrices held as row-major 9-tuples."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
+            a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
+            a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
+
+
+@_jit
+def _lin9(alpha, a, beta, b):
+    """alpha a + beta b for 9-tuples."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    return (alpha * a0 + beta * b0, alpha * a1 + beta * b1, alpha * a2 + beta * b2,
+            alpha * a3 + beta * b3, alpha * a4 + beta * b4, alpha * a5 + beta * b5,
+            alpha * a6 + beta * b6, alpha * a7 + beta * b7, alpha * a8 + beta * b8)
+
+
+@_jit
+def _poly9(c0, c1, c2, c3, x, x2, x3):
+    """c0 I + c1 x + c2 x^2 + c3 x^3 (9-tuples)."""
+    p = _lin9(c1, x, c2, x2)
+    p = _lin9(1.0, p, c3, x3)
+    return (p[0] + c0, p[1], p[2], p[3], p[4] + c0, p[5], p[6], p[7], p[8] + c0)
+
+
+@_jit
+def _expm9(x, coef):
+    """exp(x) of a 3x3 matrix (9-tuple) of norm <= ~1 by its Taylor polynomial with coefficients coef
+    (16 entries, 1/k! up to the order and 0 beyond), Paterson-Stockmeyer in blocks of 4."""
+    x2 = _mul9(x, x)
+    x3 = _mul9(x2, x)
+    x4 = _mul9(x2, x2)
+    out = _poly9(coef[12], coef[13], coef[14], coef[15], x, x2, x3)
+    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[8], coef[9], coef[10], coef[11], x, x2, x3))
+    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[4], coef[5], coef[6], coef[7], x, x2, x3))
+    return _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[0], coef[1], coef[2], coef[3], x, x2, x3))
+
+
+@_jit
+def _jac9(constants, d, e, v, u2, rt):
+    """(df/dx)_ij rt_ij at one point as a 9-tuple (rt_ij = h scale_j / scale_i)."""
+    _f, a = _model(constants, d, e, v, u2)
+    (j0, j1, j2), (j3, j4, j5), (j6, j7, j8) = a
+    return (j0 * rt[0], j1 * rt[1], j2 * rt[2], j3 * rt[3], j4 * rt[4], j5 * rt[5], j6 * rt[6], j7 * rt[7],
+            j8 * rt[8])
+
+
+@_jit
+def monodromy(state, phases, u2, h, constants, scale, order):
+    """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
+
+    ``phases`` (2S,) are the phases of the two Gauss points of the S steps (first points of all
+    steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
+    Taylor order of the matrix exponential (<= 15; that of ``_expm_small`` / ``_expm3``). The
+    state is evaluated by its trigonometric interpolant through the M collocation values.
+    """
+    m = state.shape[1]
+    nh = (m - 1) // 2
+    steps = phases.shape[0] // 2
+    # trigonometric coefficients of the interpolant: x(theta) = c0 + sum_n ca_n cos(n theta) + cs_n sin(n theta)
+    c0 = np.zeros(3)
+    ca = np.zeros((3, nh + 1))
+    cs = np.zeros((3, nh + 1))
+    for i in range(3):
+        for k in range(m):
+            c0[i] += state[i, k] / m
+    for n in range(1, nh + 1):
+        for k in range(m):
+            ang = 2.0 * math.pi * ((n * k) % m) / m
+            cn, sn = math.cos(ang), math.sin(ang)
+            for i in range(3):
+                ca[i, n] += 2.0 * state[i, k] * cn / m
+                cs[i, n] += 2.0 * state[i, k] * sn / m
+    coef = np.zeros(16)   # 1 / k! up to the order, 0 beyond (4 blocks of 4)
+    coef[0] = 1.0
+    for k in range(1, order + 1):
+        coef[k] = coef[k - 1] / k
+    rt = _t9(h * scale[0] / scale[0], h * scale[1] / scale[0], h * scale[2] / scale[0],
+             h * scale[0] / scale[1], h * scale[1] / scale[1], h * scale[2] / scale[1],
+             h * scale[0] / scale[2], h * scale[1] / scale[2], h * scale[2] / scale[2])
+    c3 = math.sqrt(3.0) / 12.0
+    total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    for s in range(steps):
+        # the state at the two Gauss points (3x3 matrices below are 9-tuples: kept in registers)
+        th = phases[s]
+        c1, s1 = math.cos(th), math.sin(th)
+        cn, sn = c1, s1
+        d, e, v = c0[0], c0[1], c0[2]
+        for n in range(1, nh + 1):
+            d += ca[0, n] * cn + cs[0, n] * sn
+            e += ca[1, n] * cn + cs[1, n] * sn
+            v += ca[2, n] * cn + cs[2, n] * sn
+            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        a1 = _jac9(constants, d, e, v, u2[s], rt)
+        th = phases[s + steps]
+        c1, s1 = math.cos(th), math.sin(th)
+        cn, sn = c1, s1
+        d, e, v = c0[0], c0[1], c0[2]
+        for n in range(1, nh + 1):
+            d += ca[0, n] * cn + cs[0, n] * sn
+            e += ca[1, n] * cn + cs[1, n] * sn
+            v += ca[2, n] * cn + cs[2, n] * sn
+            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        a2 = _jac9(constants, d, e, v, u2[s + steps], rt)
+        om = _lin9(0.5, _lin9(1.0, a1, 1.0, a2), c3, _lin9(1.0, _mul9(a2, a1), -1.0, _mul9(a1, a2)))
+        total = _mul9(_expm9(om, coef), total)     # later steps multiply from the left
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2], out[2, 0], out[2, 1], out[2, 2] = total
+    return out
+
+
+def _self_check() -> None:
+    """Compile (or load) every kernel with the argument types the solvers pass, on a tiny problem."""
+    constants = (2.9e-4, 0.02, -0.019, 4.0e7, 1.07, 3.5e4, 9.81, -2.2e5, -2.3e5, 9.0e5, 5.2e5, -5.0e5, -2.6e5)
+    scale = np.array([3e-3, 3e-2, 0.2])
+    m = 5
+    k = np.arange(m)
+    diff = k[:, None] - k[None, :]
+    with np.errstate(divide="ignore"):
+        dmat = 0.5 * (-1.0) ** diff / np.sin(np.pi * diff / m)
+    dmat[k, k] = 0.0
+    u2 = np.full(m, 1e6)
+    x_eq = np.array([3e-3, 0.03, 0.0])
+    z, _it, _res, _status = solve_cold(x_eq, -1e-4, u2, 1e6, 10.0, constants, scale, 60.0, dmat, 1e-10, 5)
+    newton(z, 10.0, u2, constants, scale, 60.0, dmat, 1e-10, 2)
+    solve_batch(np.empty((0, 3 * m)), x_eq[None], np.array([-1e-4]), u2[None], np.array([1e6]), np.array([10.0]),
+                constants, scale, 60.0, dmat, 1e-10, 2)
+    solve_batch(z[None], np.empty((0, 3)), np.empty(0), u2[None], np.array([1e6]), np.array([10.0]),
+                constants, scale, 60.0, dmat, 1e-10, 2)
+    bordered_corrector(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat, 1e-10, 2)
+    for n in (3, LAPACK_FROM + 1):
+        solve_dense(np.eye(n), np.ones(n))
+    state = (z.reshape(3, m) * scale[:, None])
+    max_spectral_radius(state[None], u2[None], constants, scale, 1)
+    max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)
+    phases = np.linspace(0.0, 6.0, 8)
+    monodromy(state, phases, np.full(8, 1e6), 1e-3, constants, scale, 14)
+    collocation_residual_jacobian(z, 10.0, u2, constants, scale, 60.0, dmat)

@@ -1,0 +1,171 @@
+"""Compiled harmonic-balance kernels (optional numba) against the numpy path and forward integration.
+
+The solvers run the compiled kernels when numba is installed; the numpy path is the reference
+written with whole-array operations. Both must give the same solutions, iterations, Floquet
+multipliers and sweeps (to rounding), and both must match converged forward integration.
+Without numba the comparisons skip and the numpy path is checked against integration alone.
+"""
+import numpy as np
+import pytest
+
+from dea_ros.model import preset, static_equilibrium
+from dea_ros.solvers import hbm_kernels
+from dea_ros.solvers.continuation import frequency_sweep
+from dea_ros.solvers.harmonic_balance import (
+    floquet_multipliers_batch,
+    model_setup,
+    solve_native,
+    solve_native_batch,
+)
+from dea_ros.solvers.inputs import SinePeriodic
+from dea_ros.solvers.realised import realised_response
+from dea_ros.solvers.steady_state import integrate_to_steady_state
+
+needs_numba = pytest.mark.skipif(not hbm_kernels.available(), reason="numba not installed (optional extra [fast])")
+PATHS = [False, pytest.param(True, marks=needs_numba)]
+
+
+@pytest.fixture(scope="module")
+def a2():
+    return preset("A2")
+
+
+@pytest.fixture
+def path():
+    """Restore the kernels' switch after a test that flips it."""
+    old = hbm_kernels.enabled()
+    yield hbm_kernels.set_enabled
+    hbm_kernels.set_enabled(old)
+
+
+def both(path, fn):
+    """fn() on the numpy path and on the compiled one."""
+    path(False)
+    ref = fn()
+    path(True)
+    return ref, fn()
+
+
+def scaled_diff(a2, x, y):
+    return float(np.max(np.abs(np.asarray(x) - np.asarray(y)) / model_setup(a2).scale[:, None]))
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_both_paths_match_converged_forward_integration(a2, path, compiled):
+    path(compiled)
+    inp = SinePeriodic(2500.0, 3.0)      # (on the peak: test_harmonic_balance, on the default path)
+    d0 = static_equilibrium(a2, 0.0).displacement_m
+    hbm = solve_native(a2, inp, n_harmonics=8)
+    batch = solve_native_batch(a2, [inp, SinePeriodic(2500.0, 4.0)], n_harmonics=8, stability=True)
+    fi = integrate_to_steady_state(a2, inp, tol=1e-8)
+    ref = fi.displacement_rms(d0)
+    assert abs(hbm.displacement_rms(d0) - ref) / ref < 1e-5
+    assert abs(batch[0].displacement_rms(d0) - ref) / ref < 1e-5
+    assert hbm.stable and batch[0].stable and batch[1].stable
+
+
+@needs_numba
+@pytest.mark.parametrize("n", [2, 4, 8])
+def test_single_solves_are_the_same_on_both_paths(a2, path, n):
+    for f in (0.1, 3.0, 9.5, 17.0):
+        ref, fast = both(path, lambda: solve_native(a2, SinePeriodic(2500.0, f), n, stability=True))
+        assert fast.iterations == ref.iterations
+        assert scaled_diff(a2, fast.state, ref.state) < 1e-10
+        np.testing.assert_allclose(fast.multipliers, ref.multipliers, rtol=0, atol=1e-10)
+        assert fast.stability == ref.stability
+
+
+@needs_numba
+def test_batched_solves_and_stability_are_the_same_on_both_paths(a2, path):
+    inputs = [SinePeriodic(2500.0, f) for f in np.linspace(0.1, 20.0, 17)]
+    ref, fast = both(path, lambda: solve_native_batch(a2, inputs, 4, stability=True))
+    for r, s in zip(ref, fast):
+        assert s.iterations == r.iterations
+        assert scaled_diff(a2, s.state, r.state) < 1e-10
+        np.testing.assert_allclose(s.multipliers, r.multipliers, rtol=0, atol=1e-10)
+    # with initial guesses, and without the symmetry (full period: the half-period multipliers too)
+    guesses = [s.state for s in ref]
+    ref_g, fast_g = both(path, lambda: solve_native_batch(a2, inputs[:5], 4, x_guesses=guesses[:5]))
+    for r, s in zip(ref_g, fast_g):
+        assert scaled_diff(a2, s.state, r.state) < 1e-10
+    ref_f, fast_f = both(path, lambda: solve_native_batch(a2, inputs[3:6], 6, use_symmetry=False, stability=True))
+    for r, s in zip(ref_f, fast_f):
+        np.testing.assert_allclose(s.multipliers, r.multipliers, rtol=0, atol=1e-10)
+        assert (s.half_period_multipliers is None) == (r.half_period_multipliers is None)
+        if r.half_period_multipliers is not None:
+            np.testing.assert_allclose(s.half_period_multipliers, r.half_period_multipliers, rtol=0, atol=1e-10)
+
+
+@needs_numba
+def test_coarse_batch_multipliers_are_the_same_on_both_paths(a2, path):
+    sols = solve_native_batch(a2, [SinePeriodic(2500.0, f) for f in (0.3, 2.0, 9.4, 14.0)], 6)
+    states = np.stack([s.state for s in sols])
+    periods = np.array([s.response_period_s for s in sols])
+    setup = model_setup(a2)
+    ref, fast = both(path, lambda: floquet_multipliers_batch(setup.model, states, periods, SinePeriodic(2500.0, 1.0),
+                                                             2, scale=setup.scale))
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-10)
+
+
+@needs_numba
+def test_sweep_with_bands_is_the_same_on_both_paths(a2, path):
+    """Folds, bifurcations, bands and the realised (integrated) responses in the torus band."""
+    grid = np.linspace(0.1, 20.0, 60)
+    ref, fast = both(path, lambda: frequency_sweep(a2, SinePeriodic(2500.0, 0.1), grid, n_harmonics=8))
+    assert len(fast.points) == len(ref.points)
+    np.testing.assert_allclose(fast.d_rms_m, ref.d_rms_m, rtol=1e-8)
+    assert [p.stability for p in fast.points] == [p.stability for p in ref.points]
+    np.testing.assert_allclose([f.frequency_Hz for f in fast.folds], [f.frequency_Hz for f in ref.folds], rtol=1e-8)
+    assert [(b.kind, round(b.f_start_Hz, 6), round(b.f_end_Hz, 6)) for b in fast.bands] == \
+        [(b.kind, round(b.f_start_Hz, 6), round(b.f_end_Hz, 6)) for b in ref.bands]
+    assert [(b.kind, round(b.frequency_Hz, 6)) for b in fast.bifurcations] == \
+        [(b.kind, round(b.frequency_Hz, 6)) for b in ref.bifurcations]
+    np.testing.assert_allclose(fast.realised_d_rms_m, ref.realised_d_rms_m, rtol=1e-8, equal_nan=True)
+    assert fast.resonance_peak()["frequency_Hz"] == pytest.approx(ref.resonance_peak()["frequency_Hz"], rel=1e-9)
+
+
+@needs_numba
+def test_realised_integration_is_the_same_on_both_paths(a2, path):
+    d0 = static_equilibrium(a2, 0.0).displacement_m
+    ref, fast = both(path, lambda: realised_response(a2, SinePeriodic(2500.0, 9.5), [1.2 * d0, 0.0, 0.0], d0,
+                                                     settle_periods=20, window_periods=10))
+    assert fast.d_rms_m == pytest.approx(ref.d_rms_m, rel=1e-12)
+    assert fast.kind == ref.kind
+    np.testing.assert_allclose(fast.final_state, ref.final_state, rtol=1e-10)
+
+
+def test_spectral_radius_of_3x3_matrices_matches_eigenvalues():
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        a = rng.normal(size=(3, 3)) * rng.choice([1e-2, 1.0, 1e2])
+        want = np.max(np.abs(np.linalg.eigvals(a)))
+        assert hbm_kernels.spectral_radius3(a) == pytest.approx(want, rel=1e-7)
+    assert hbm_kernels.spectral_radius3(np.diag([3.0, -5.0, 1.0])) == pytest.approx(5.0)
+    assert hbm_kernels.spectral_radius3(np.array([[0.0, -2.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, 1.0]])) == \
+        pytest.approx(2.0)
+
+
+def test_switch_without_numba_says_how_to_get_it(monkeypatch):
+    monkeypatch.setattr(hbm_kernels, "numba", None)
+    with pytest.raises(RuntimeError, match="pip install numba"):
+        hbm_kernels.set_enabled(True)
+
+
+@needs_numba
+def test_a_numba_that_cannot_compile_the_kernels_falls_back_to_numpy(a2, monkeypatch):
+    """E.g. an older distribution numba: one warning, then the numpy path with the same answers."""
+    ref = solve_native(a2, SinePeriodic(2500.0, 5.0), 4)
+
+    def broken():
+        raise TypeError("no implementation for this numba")
+
+    monkeypatch.setattr(hbm_kernels, "_self_check", broken)
+    monkeypatch.setattr(hbm_kernels, "_checked", False)
+    monkeypatch.setattr(hbm_kernels, "_enabled", True)
+    monkeypatch.setattr(hbm_kernels, "_failure", None)
+    with pytest.warns(RuntimeWarning, match="using the numpy path"):
+        assert not hbm_kernels.enabled()
+    sol = solve_native(a2, SinePeriodic(2500.0, 5.0), 4)
+    assert scaled_diff(a2, sol.state, ref.state) < 1e-10
+    with pytest.raises(RuntimeError, match="could not run"):
+        hbm_kernels.set_enabled(True)
