@@ -39,6 +39,9 @@ setup(
         "mousai": ["mousai==0.3.1"],
         # only for amplifier_node backend uldaq (Measurement Computing DAQ); needs libuldaq (README)
         "uldaq": ["uldaq>=1.2.3"],
+        # only for `dea-ros study` / `dea-ros identify` on many inputs: Dask engine (local cluster or
+        # --scheduler ADDRESS), Parquet results, a progress bar; without them: local processes, CSV, text
+        "study": ["dask[distributed]>=2022.1", "distributed>=2022.1", "pyarrow>=10", "tqdm>=4.57"],
     },
     zip_safe=True,
     maintainer="dea_ros developers",

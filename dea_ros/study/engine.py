@@ -69,8 +69,10 @@ class Engine:
         cores = os.cpu_count() or 1
         self.workers = workers or cores
         if kind == "auto":
-            kind = "dask" if (dask_available() and self.workers > 1) else ("processes" if self.workers > 1
-                                                                          else "serial")
+            if self.workers == 1:
+                kind = "serial"
+            else:
+                kind = "dask" if dask_available() else "processes"
         if kind == "dask":
             _need_dask("engine dask")
         self.kind = kind

@@ -130,6 +130,11 @@ class StudySpec:
 
 
 def _number(where: str, value, positive: bool = False) -> float:
+    if isinstance(value, str):   # PyYAML reads 3e-5 (no dot) as text: accept a number written so
+        try:
+            value = float(value)
+        except ValueError:
+            raise SpecError(f"{where}: a number is needed (SI units), got {value!r}") from None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SpecError(f"{where}: a number is needed (SI units), got {value!r}")
     x = float(value)
