@@ -20,7 +20,7 @@ def test_register_adds_both_subcommands():
     assert set(parsers) == {"synth", "identify"}
     args = parser.parse_args(["identify", "data", "--out", "o", "--json", "--quiet", "--static-method", "paper",
                               "--frequency-method", "integration"])
-    assert args.func.__name__ == "cmd_identify" and args.static_method == "paper"
+    assert args.func.__name__ == "cmd_identify" and args.static_method == "paper" and args.data == ["data"]
     assert args.frequency_method == "integration" and args.json and args.quiet
     args = parser.parse_args(["synth", "--membrane", "A1", "--noise", "1e-6", "--out", "d", "--seed", "3"])
     assert args.func.__name__ == "cmd_synth" and args.seed == 3
