@@ -248,6 +248,18 @@ def _check_samples(args) -> None:
                           f"samples, got {n}")
 
 
+def _check_input(data) -> None:
+    """An experiment folder (manifest.yaml), a manifest YAML or a bag; else a usage error naming it."""
+    from .from_bag import is_bag
+
+    p = Path(data)
+    if not p.exists():
+        raise _UsageError(f"DATA {data}: no such file or folder")
+    if (p / "manifest.yaml").is_file() or (p.is_file() and p.name.endswith((".yaml", ".yml"))) or is_bag(p):
+        return
+    raise _UsageError(f"DATA {data}: neither an experiment folder (with manifest.yaml) nor a rosbag2 MCAP bag")
+
+
 def cmd_identify_many(args) -> int:
     """``dea-ros identify IN1 IN2 ... --out OUT``: every input in parallel, a summary table and the spread
     (:mod:`dea_ros.identify.many`). Exit 0 all identified; 2 an input is unreadable or not identifiable
@@ -266,10 +278,8 @@ def cmd_identify_many(args) -> int:
         if args.fit_frequencies:
             fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
                                                                                   args.fit_frequencies)
-        missing = [d for d in args.data if not Path(d).exists()]
-        if missing:
-            raise _UsageError(f"DATA {missing[0]}: no such file or folder" + (
-                f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+        for d in args.data:   # before any engine starts: each input must look like one
+            _check_input(d)
         if args.workers is not None and args.workers < 1:
             raise _UsageError(f"--workers: a positive number of worker processes is needed, got {args.workers}")
         engine = engine_from_args(args)

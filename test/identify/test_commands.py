@@ -34,10 +34,15 @@ def test_synth_then_identify_json(tmp_path, capsys):
                "--frequencies", "2,8.3,9.5,11.2,40", "--quiet"])
     assert rc == 0 and (data / "manifest.yaml").is_file() and (data / "truth.yaml").is_file()
     out = tmp_path / "fit"
-    rc = main(["identify", str(data), "--out", str(out), "--json", "--quiet", "--no-plots"])
+    rc = main(["identify", str(data), "--out", str(out), "--json", "--quiet", "--no-plots",
+               "--uncertainty-samples", "8"])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)
     assert report["membrane"] == "A2"
+    band = report["uncertainty"][0]          # the frequency-response band (8 samples keep the test short)
+    assert band["samples"] + band["failed_samples"] == 8 and band["amplitude_V"] == 2500.0
+    lo, hi = band["peak_frequency_ci_Hz"]
+    assert 0 < lo < hi < 2 * band["peak_frequency_Hz"]
     assert set(report["timings_s"]) >= {"load", "static_fit", "dynamic_fit", "evaluation", "report", "total"}
     assert report["dynamic_fit"]["fit_frequencies_Hz"] == [8.3, 11.2, 40.0]  # the paper's, those present
     assert report["metrics"]["steps"][0]["rms_error_um"] == pytest.approx(1.0, abs=0.05)
