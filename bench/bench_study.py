@@ -45,11 +45,13 @@ def spec(designs: int, points: int, chunk: int):
 
 def run(kind: str, workers: int, sp, root: Path) -> dict:
     out = root / f"{kind}_{workers}"
+    c0 = time.process_time()
     t0 = time.perf_counter()
     with Engine(kind, workers=workers) as engine:
         t_start = time.perf_counter() - t0
         summary = run_study(sp, out, engine=engine, progress=False, plots=False)
     summary["startup_s"] = t_start
+    summary["cpu_s"] = time.process_time() - c0   # this process only (the serial run's work)
     summary["table"] = read_results(summary["results"])
     return summary
 
@@ -101,6 +103,9 @@ def main() -> None:
         lines.append(f"| {name} | {s['compute_s']:.1f} | {args.designs / s['compute_s']:.3f} | "
                      f"{s['compute_s'] / args.designs:.3f} | {s['startup_s']:.1f} | {diff:.1e} | {s['failed']} |")
     eff = t1 / (2.0 * t2)
+    serial = runs["serial (in process)"]
+    lines += ["", f"Serial run: CPU {serial['cpu_s']:.1f} s for {serial['compute_s']:.1f} s wall "
+              f"({100 * serial['cpu_s'] / serial['compute_s']:.0f} % of a core: the rest went to other processes)."]
     table = runs["serial (in process)"]["table"]
     ok = [r for r in table["status"] if r == "ok"]
     lines += ["", f"Scaling 1 -> 2 workers: speed-up {t1 / t2:.2f}, efficiency {100 * eff:.0f} %.",
