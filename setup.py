@@ -16,6 +16,7 @@ setup(
         ("share/" + package_name + "/config/membranes", glob("config/membranes/*.yaml")),
         ("share/" + package_name + "/config/protocols", glob("config/protocols/*.yaml")),
         ("share/" + package_name + "/config/rig", glob("config/rig/*.yaml")),
+        ("share/" + package_name + "/config/studies", glob("config/studies/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
         ("share/" + package_name + "/urdf", glob("urdf/*.urdf")),
     ],

@@ -59,6 +59,15 @@ def test_a_bad_spec_is_refused_naming_the_field(changes, field):
         spec_of(**changes)
 
 
+def test_the_shipped_example_spec_is_valid():
+    from dea_ros.model import config_dir
+    from dea_ros.study import load_spec
+
+    spec = load_spec(config_dir() / "studies" / "a2_family.yaml")
+    assert spec.n_designs == 10000 and spec.method == "lhs" and spec.names[:2] == ["prestretch", "thickness_m"]
+    assert spec.plots == [["prestretch", "thickness_m"], ["mass_kg", "amplitude_V"]]
+
+
 def test_grid_is_the_full_product_and_samples_are_seeded_and_space_filling():
     grid = spec_of().designs()
     assert grid.shape == (4, 2)
