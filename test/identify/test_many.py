@@ -15,8 +15,8 @@ def test_labels_are_unique_folder_names():
 
 
 def test_many_inputs_in_parallel_match_the_single_input_path(synthetic, identified, tmp_path):
-    """Two inputs on two processes (the paper's two stages, the cheaper fit; the same data set twice under
-    two names) give the parameters and intervals of the single-input path."""
+    """Two inputs on two processes (the paper's two stages without the evaluation, the cheapest fit; the
+    same data set twice under two names) give the parameters and intervals of the single-input path."""
     import shutil
 
     a2, _ = synthetic("A2")
@@ -26,7 +26,8 @@ def test_many_inputs_in_parallel_match_the_single_input_path(synthetic, identifi
     bad.mkdir()
     (bad / "manifest.yaml").write_text("format: dea_ros.experiments/1\nexperiments:\n- kind: static\n  file: x.csv\n")
     with Engine("processes", workers=2) as engine:
-        summary = identify_many([a2, a1, bad], tmp_path / "out", engine=engine, progress=False, refine="none")
+        summary = identify_many([a2, a1, bad], tmp_path / "out", engine=engine, progress=False, refine="none",
+                                evaluate_fit=False)   # the parameters do not depend on the evaluation
     rows = {r["name"]: r for r in summary["rows"]}
     assert [r["name"] for r in summary["rows"]] == [a2.name, a1.name, "broken"]
     assert rows["broken"]["status"] == "bad input" and "manifest.yaml" in rows["broken"]["error"]
@@ -39,9 +40,9 @@ def test_many_inputs_in_parallel_match_the_single_input_path(synthetic, identifi
             assert row[col] == pytest.approx(value, rel=1e-6), (folder.name, col)
         meta = ref.identification_metadata()
         assert [row["k1_Pa_ci95_low"], row["k1_Pa_ci95_high"]] == pytest.approx(meta["k1_Pa_ci95"], rel=1e-6)
-        assert row["n_warnings"] == len(ref.warnings)
+        assert row["n_warnings"] == len(row["warnings"].split(" | ")) if row["warnings"] else row["n_warnings"] == 0
         assert (tmp_path / "out" / folder.name / "params.yaml").is_file()
-        assert math.isfinite(row["peak_frequency_Hz"])
+        assert math.isnan(row["peak_frequency_Hz"])   # no evaluation asked: no model peak
     with open(summary["summary_csv"], newline="") as fh:
         table = list(csv.DictReader(fh))
     assert [t["status"] for t in table] == ["ok", "ok", "bad input"]
