@@ -16,6 +16,7 @@ setup(
         ("share/" + package_name + "/config/membranes", glob("config/membranes/*.yaml")),
         ("share/" + package_name + "/config/protocols", glob("config/protocols/*.yaml")),
         ("share/" + package_name + "/config/rig", glob("config/rig/*.yaml")),
+        ("share/" + package_name + "/config/studies", glob("config/studies/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
         ("share/" + package_name + "/urdf", glob("urdf/*.urdf")),
     ],
@@ -41,6 +42,9 @@ setup(
         "mousai": ["mousai==0.3.1"],
         # only for amplifier_node backend uldaq (Measurement Computing DAQ); needs libuldaq (README)
         "uldaq": ["uldaq>=1.2.3"],
+        # only for `dea-ros study` / `dea-ros identify` on many inputs: Dask engine (local cluster or
+        # --scheduler ADDRESS), Parquet results, a progress bar; without them: local processes, CSV, text
+        "study": ["dask[distributed]>=2022.1", "distributed>=2022.1", "pyarrow>=10", "tqdm>=4.57"],
     },
     zip_safe=True,
     maintainer="dea_ros developers",

@@ -428,7 +428,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_sweep)
 
-    for module in ("dea_ros.identify.commands", "dea_ros.bag.commands", "dea_ros.replay", "dea_ros.rig"):
+    for module in ("dea_ros.identify.commands", "dea_ros.study.commands", "dea_ros.bag.commands", "dea_ros.replay",
+                   "dea_ros.rig"):
         try:
             mod = __import__(module, fromlist=["register"])
         except ImportError:

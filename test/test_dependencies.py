@@ -42,7 +42,8 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "se
 PIP_NAMES = {"numpy": "numpy", "scipy": "scipy", "yaml": "PyYAML", "matplotlib": "matplotlib", "serial": "pyserial",
              "mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap", "lz4": "mcap"}
 #: optional: no rosdep key; extras of setup.py, imported only where needed
-OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba"}
+OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba", "distributed": "distributed",
+            "pyarrow": "pyarrow", "tqdm": "tqdm"}
 
 
 def imports(path: Path):

@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["register", "cmd_synth", "cmd_identify", "build_parser", "main"]
+__all__ = ["register", "cmd_synth", "cmd_identify", "cmd_identify_many", "build_parser", "main"]
 
 
 def _progress_printer(stream):
@@ -168,9 +168,14 @@ def cmd_identify(args) -> int:
     progress = None if args.quiet else _progress_printer(stream)
     t0 = time.perf_counter()
     fit_freqs = None
+    if isinstance(args.data, list):
+        if len(args.data) > 1:
+            return cmd_identify_many(args)
+        args.data = args.data[0]
     try:
         _check_out_dir(args.out)
         _check_harmonics(args.harmonics)
+        _check_samples(args)
         if args.membrane:
             _check_membrane(args.membrane)
         if args.fit_frequencies:
@@ -228,7 +233,83 @@ def _identify_options(args, fit_freqs) -> dict:
     return dict(static_method=args.static_method, frequency_method=args.frequency_method,
                 dynamic_method=args.dynamic_method, fit_frequencies_Hz=fit_freqs, n_harmonics=args.harmonics,
                 weights=args.weights, fit_curvature={"auto": "auto", "yes": True, "no": False}[args.fit_curvature],
-                refine=getattr(args, "refine", "joint"))
+                refine=getattr(args, "refine", "joint"),
+                uncertainty_samples=getattr(args, "uncertainty_samples", 0))
+
+
+#: ``--uncertainty-samples`` limit: each sample is a batched solve and a short continuation sweep.
+MAX_UNCERTAINTY_SAMPLES = 10000
+
+
+def _check_samples(args) -> None:
+    n = getattr(args, "uncertainty_samples", 0)
+    if n != 0 and not 2 <= n <= MAX_UNCERTAINTY_SAMPLES:
+        raise _UsageError(f"--uncertainty-samples: 0 (no band) or 2 to {MAX_UNCERTAINTY_SAMPLES} Monte Carlo "
+                          f"samples, got {n}")
+
+
+def _check_input(data) -> None:
+    """An experiment folder (manifest.yaml), a manifest YAML or a bag; else a usage error naming it."""
+    from .from_bag import is_bag
+
+    p = Path(data)
+    if not p.exists():
+        raise _UsageError(f"DATA {data}: no such file or folder")
+    if (p / "manifest.yaml").is_file() or (p.is_file() and p.name.endswith((".yaml", ".yml"))) or is_bag(p):
+        return
+    raise _UsageError(f"DATA {data}: neither an experiment folder (with manifest.yaml) nor a rosbag2 MCAP bag")
+
+
+def cmd_identify_many(args) -> int:
+    """``dea-ros identify IN1 IN2 ... --out OUT``: every input in parallel, a summary table and the spread
+    (:mod:`dea_ros.identify.many`). Exit 0 all identified; 2 an input is unreadable or not identifiable
+    data (named in the summary); 1 a fit failed."""
+    from ..study.commands import engine_from_args
+    from ..study.engine import EngineError
+    from .many import identify_many
+
+    fit_freqs = None
+    try:
+        _check_out_dir(args.out)
+        _check_harmonics(args.harmonics)
+        _check_samples(args)
+        if args.membrane:
+            _check_membrane(args.membrane)
+        if args.fit_frequencies:
+            fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
+                                                                                  args.fit_frequencies)
+        for d in args.data:   # before any engine starts: each input must look like one
+            _check_input(d)
+        if args.workers is not None and args.workers < 1:
+            raise _UsageError(f"--workers: a positive number of worker processes is needed, got {args.workers}")
+        engine = engine_from_args(args)
+    except (_UsageError, EngineError) as exc:
+        return _error("identify", exc)
+    options = _identify_options(args, fit_freqs)
+    with engine:
+        if not args.quiet:
+            print(f"[identify] {len(args.data)} inputs on {engine.describe()}", file=sys.stderr, flush=True)
+        summary = identify_many(args.data, args.out, engine=engine, membrane=args.membrane,
+                                segments_file=args.segments, plots=not args.no_plots, progress=not args.quiet,
+                                **options)
+    rows = summary["rows"]
+    if args.json:
+        print(json.dumps(summary, indent=2, default=str))
+    elif not args.quiet:
+        for r in rows:
+            if r["status"] == "ok":
+                print(f"[{r['name']}] eps_r {r['eps_r']:.4g}, k1 {r['k1_Pa']:.4g} Pa, eta1 {r['eta1_Pa_s']:.4g} Pa s, "
+                      f"eta2 {r['eta2_Pa_s']:.4g} Pa s, peak {r['peak_frequency_Hz']:.4f} Hz, "
+                      f"{r['n_warnings']} warning(s)", file=sys.stderr)
+            else:
+                print(f"[{r['name']}] {r['status']}: {r['error']}", file=sys.stderr)
+        n_ok = sum(r["status"] == "ok" for r in rows)
+        print(f"[done] {n_ok}/{len(rows)} identified in {summary['wall_time_s']:.1f} s; "
+              f"wrote {summary['summary_md']}, {summary['summary_csv']}"
+              + (f", {summary['spread']}" if summary["spread"] else ""), file=sys.stderr)
+    if any(r["status"] == "bad input" for r in rows):
+        return 2
+    return 1 if any(r["status"] != "ok" for r in rows) else 0
 
 
 def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | None:
@@ -308,8 +389,10 @@ def register(subparsers) -> dict:
         "identify", help="fit the model parameters to an experiment folder and write a report",
         description="Static fit (eqs. 19-20), then dynamic fit (eqs. 22-24) accelerated by harmonic balance; "
                     "writes OUT/params.yaml, OUT/report.md, figures and result.json.")
-    ident.add_argument("data", help="experiment folder with manifest.yaml (or a rosbag2 MCAP bag recorded "
-                                    "by identifier_node, via dea_ros.identify.from_bag)")
+    ident.add_argument("data", nargs="+",
+                       help="experiment folder with manifest.yaml (or a rosbag2 MCAP bag recorded by identifier_node, "
+                            "via dea_ros.identify.from_bag); several: each into OUT/<name>/ in parallel, with "
+                            "OUT/summary.md, summary.csv and spread.png")
     ident.add_argument("--membrane", default=None,
                        help="bags only: preset name or parameters YAML for the geometry (default: the bag's)")
     ident.add_argument("--out", required=True, help="output folder for params.yaml and the report")
@@ -336,6 +419,14 @@ def register(subparsers) -> dict:
                        help="joint (default): refine all identifiable parameters together with statistical weights "
                             "on every classified sine record (honest 95 %% intervals); none: the paper's two stages")
     ident.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    from .uncertainty import DEFAULT_SAMPLES
+
+    ident.add_argument("--uncertainty-samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
+                       help=f"Monte Carlo samples of the fit's covariance for the 95 %% band of the frequency "
+                            f"response and the resonance peak in the report (default {DEFAULT_SAMPLES}; 0: none)")
+    from ..study.commands import add_engine_args
+
+    add_engine_args(ident)
     ident.add_argument("--voltage-topic", default="/dea/voltage",
                        help="bags: applied-voltage topic (BatteryState or Float64; default /dea/voltage)")
     ident.add_argument("--displacement-topic", default="/dea/displacement",

@@ -86,6 +86,8 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
         "figures": sorted(str(v) for k, v in paths.items() if str(k).endswith(".png")),
         "parameters": p.to_dict(),
         "metrics": result.to_dict().get("metrics"),
+        "identification": result.to_dict().get("identification"),
+        "uncertainty": [b.to_dict() for b in result.uncertainty],
         "warnings": list(result.warnings),
         "timings_s": {"extract": t_extract, "fit": t_fit, "report": paths.get("report_s", 0.0)},
         "headline": headline,

@@ -58,6 +58,27 @@ class ParameterStatistics:
     singular_values: np.ndarray  # of the column-normalised Jacobian, descending
     confidence: float = 0.95
     warnings: list = field(default_factory=list)
+    #: per parameter: True where it was fitted in ln (its interval is multiplicative); empty: none
+    log_parameters: tuple = ()
+
+    def is_log(self) -> np.ndarray:
+        """(p,) bool: the parameters fitted in ln."""
+        flags = np.zeros(len(self.names), dtype=bool)
+        if len(self.log_parameters) == len(self.names):
+            flags[:] = np.asarray(self.log_parameters, dtype=bool)
+        return flags
+
+    def covariance(self) -> np.ndarray | None:
+        """Linearised covariance (p, p) in the fit's coordinates: ln(value) for the log parameters
+        (:meth:`is_log`), the value itself for the others; from the standard errors and the
+        correlation matrix. None when a parameter is not determined (infinite standard error)."""
+        values = np.asarray(self.values, float)
+        se = np.asarray(self.std_error, float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(self.is_log(), se / np.abs(values), se)
+        if not np.all(np.isfinite(s)):
+            return None
+        return np.asarray(self.correlation, float) * np.outer(s, s)
 
     def as_dict(self) -> dict:
         """JSON-friendly summary (CI, relative CI, correlation)."""
@@ -173,6 +194,7 @@ def parameter_statistics(
         names=names, values=values, std_error=std_error, ci_low=lo, ci_high=hi, relative_ci=rel,
         correlation=corr, residual_std=math.sqrt(s2), dof=0 if no_dof else dof, rank=rank,
         singular_values=sv, confidence=confidence, warnings=warnings,
+        log_parameters=tuple(bool(x) for x in is_log),
     )
 
 

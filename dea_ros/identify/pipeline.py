@@ -77,6 +77,9 @@ class IdentificationResult:
     curvature_identified: bool | None = None
     curvature_written_Pa: float | None = None
     curvature_status: str = "not fitted"   # "identified", "poorly determined", "not identified", "not fitted"
+    #: confidence bands of the frequency response (:class:`~dea_ros.identify.uncertainty.ResponseBand`),
+    #: one per sine data set and amplitude, when asked for (``uncertainty_samples``)
+    uncertainty: list = field(default_factory=list)
 
     @property
     def statistics(self):
@@ -161,6 +164,8 @@ class IdentificationResult:
                                            for c in self.classification])
         if self.joint is not None:
             out["joint_fit"] = _jsonable(self.joint.as_dict())
+        if self.uncertainty:
+            out["uncertainty"] = _jsonable([b.to_dict() for b in self.uncertainty])
         if self.dynamic is not None:
             dy = self.dynamic
             out["dynamic_fit"] = {
@@ -514,6 +519,37 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
 
 
 # --------------------------------------------------------------------------- identification
+#: Frequencies of a confidence band: over the range of a sine data set, and as many again within
+#: +-15 % of the model's resonance peak (where the band is widest).
+BAND_POINTS = 40
+
+
+def _uncertainty_bands(params, statistics, experiments: ExperimentSet, n_samples: int, n_harmonics: int, engine,
+                       metrics: dict):
+    """Confidence bands (one per sine data set and amplitude) and warnings where none can be drawn."""
+    from .uncertainty import response_band
+
+    peaks = {(e.get("source"), r["amplitude_V"]): r.get("simulated_peak_Hz")
+             for e in metrics.get("frequency_response", []) for r in e.get("resonance", [])}
+    bands, warnings = [], []
+    if statistics is None:
+        return bands, ["no confidence band of the frequency response: no dynamic fit statistics"]
+    for sine in experiments.sines:
+        for a in np.unique(sine.amplitude_V):
+            f = sine.frequency_Hz[sine.amplitude_V == a]
+            grid = np.linspace(f.min(), f.max(), BAND_POINTS)
+            fp = peaks.get((sine.source, float(a)))
+            if fp is not None and np.isfinite(fp):
+                near = np.linspace(0.85 * fp, 1.15 * fp, BAND_POINTS)
+                grid = np.union1d(grid, near[(near >= f.min()) & (near <= f.max())])
+            try:
+                bands.append(response_band(params, statistics, float(a), grid, n_samples=n_samples,
+                                           n_harmonics=n_harmonics, mass_kg=sine.mass_kg, engine=engine))
+            except (ValueError, HarmonicBalanceError, RuntimeError) as exc:
+                warnings.append(f"{sine.source}: no confidence band of the frequency response at {a:g} V ({exc})")
+    return bands, warnings
+
+
 def _curvature_fallback(static: StaticFitResult | None, params: MembraneParameters) -> np.ndarray:
     """(beta, gamma) whose curvature terms (sigma_h''(1), sigma_h'''(1)) are written when the data do
     not determine them: the base parameters' (or, without base parameters, the static fit's
@@ -580,6 +616,8 @@ def identify(
     evaluate_fit: bool = True,
     fit_curvature="auto",
     refine: str = "joint",
+    uncertainty_samples: int = 0,
+    engine=None,
 ) -> IdentificationResult:
     """Identify all parameters of ``experiments`` (see the module docstring).
 
@@ -590,6 +628,9 @@ def identify(
     weights on all classified records (the final parameters and intervals); "none" stops after
     the paper's two stages. ``fit_curvature``: identify sigma_h''(1) -- "auto" in the joint
     refinement when there are sine records; True also in stage 1 (with noise weights); False never.
+    ``uncertainty_samples`` > 0: Monte Carlo confidence bands of the frequency response and the resonance
+    peak over the final covariance (:func:`~dea_ros.identify.uncertainty.response_band`, one per sine data
+    set and amplitude; ``engine``: an open :class:`~dea_ros.study.engine.Engine` for its batches).
     """
     if refine not in ("joint", "none"):
         raise ValueError(f"refine: 'joint' or 'none', got {refine!r}")
@@ -827,6 +868,14 @@ def identify(
                 float(np.max(np.abs(a - c["simulated_m"]))) * 1e6 for a, c in zip(sims, curves["steps"]))
         warnings += quality
         timings["evaluation"] = time.perf_counter() - t0
+    bands = []
+    if uncertainty_samples and experiments.sines:
+        t0 = time.perf_counter()
+        bands, band_warnings = _uncertainty_bands(params, joint.statistics if joint is not None else (
+            dynamic.statistics if dynamic is not None else None), experiments, int(uncertainty_samples), n_harmonics,
+            engine, metrics)
+        warnings += band_warnings
+        timings["uncertainty"] = time.perf_counter() - t0
     timings["identification_total"] = time.perf_counter() - t_start
     options = {"static_method": static_method, "dynamic_method": dynamic_method,
                "frequency_method": frequency_method, "n_harmonics": n_harmonics,
@@ -834,11 +883,11 @@ def identify(
                "fit_curvature": bool(dynamic is not None and dynamic.curvature_fitted)
                or bool(joint is not None and joint.curvature_fitted),
                "weights": weights if isinstance(weights, (str, type(None))) else dict(weights),
-               "refine": refine if joint is not None else "none"}
+               "refine": refine if joint is not None else "none", "uncertainty_samples": int(uncertainty_samples)}
     # Drop duplicates, keep order.
     seen = set()
     unique = [w for w in warnings if not (w in seen or seen.add(w))]
     return IdentificationResult(experiments, params, static, dynamic, metrics, curves, timings, unique, options,
                                 joint=joint, classification=classification,
                                 curvature_identified=curvature_identified, curvature_written_Pa=curvature_written,
-                                curvature_status=curvature_status)
+                                curvature_status=curvature_status, uncertainty=bands)

@@ -8,7 +8,8 @@
     result.json        the same content, machine readable
     static.png         Fig. 6: rest displacement vs voltage (and vs mass), data and model
     step.png           Fig. 8 left: step responses, data and model, and the error
-    frequency.png      Fig. 8 right: RMS displacement vs frequency, data and model
+    frequency.png      Fig. 8 right: RMS displacement vs frequency, data and model (with the model's
+                       confidence band and the peak's interval when the identification computed them)
     sine_series.png    sampled sine records vs model (when the data include them)
 
 Figures are drawn on :class:`matplotlib.figure.Figure` objects (Agg), without pyplot state.
@@ -181,6 +182,20 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
                                .get(b.kind, "C3"), alpha=0.10, lw=0)
             peak = sweep.resonance_peak(True)
             ax.axvline(peak["frequency_Hz"], color="C0", lw=0.6, ls="--")
+        for band in result.uncertainty:
+            if abs(band.mass_kg - sine.mass_kg) > 1e-12 or band.amplitude_V not in sine.amplitude_V:
+                continue
+            ax.fill_between(band.frequencies_Hz, band.lower_m * 1e3, band.upper_m * 1e3, color="C0", alpha=0.25,
+                            lw=0, label=f"model {100 * band.confidence:.0f} % band ({band.samples} Monte Carlo "
+                                        "samples)")
+            lo, hi = band.peak_frequency_ci_Hz
+            if np.isfinite(lo) and np.isfinite(hi):
+                ax.errorbar([band.peak_frequency_Hz], [band.peak_d_rms_m * 1e3],
+                            xerr=[[band.peak_frequency_Hz - lo], [hi - band.peak_frequency_Hz]],
+                            yerr=[[(band.peak_d_rms_m - band.peak_d_rms_ci_m[0]) * 1e3],
+                                  [(band.peak_d_rms_ci_m[1] - band.peak_d_rms_m) * 1e3]],
+                            fmt="D", color="C0", ms=4, capsize=3, lw=0.8,
+                            label=f"model peak, {100 * band.confidence:.0f} % interval")
         used = np.array(item["used"])
         for kind, (marker, col) in KIND_MARKERS.items():
             sel = used == kind
@@ -439,6 +454,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um (model aligned on the phase of u^2)")
         if entry.get("series_rms_error_um"):
             out.append("")
+    if result.uncertainty:
+        out += _uncertainty_section(result.uncertainty)
     # ---- fits
     if st is not None:
         out.append("## Static fit (eqs. 19-20)")
@@ -502,6 +519,28 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             out.append(f"![{title}]({name})")
             out.append("")
     return "\n".join(out)
+
+
+def _uncertainty_section(bands) -> list:
+    """report.md lines: the confidence of the frequency response and the resonance peak (Monte Carlo)."""
+    b0 = bands[0]
+    out = ["## Uncertainty of the frequency response", "",
+           f"Monte Carlo over the final fit's linearised covariance ({b0.samples} samples of "
+           f"{', '.join(b0.parameters)}; seed {b0.seed}): the shaded band in the frequency-response figure holds the "
+           f"central {100 * b0.confidence:.0f} % of the samples' responses at every frequency "
+           "(`dea_ros.identify.uncertainty`).", "",
+           f"| Amplitude | Mass | Resonance peak [Hz] | {100 * b0.confidence:.0f} % interval [Hz] | Peak d_rms [um] | "
+           f"{100 * b0.confidence:.0f} % interval [um] | widest band (half width / d_rms) | failed samples |",
+           "|---|---|---|---|---|---|---|---|"]
+    for b in bands:
+        rel = b.to_dict()["max_relative_half_width"]
+        out.append(f"| {b.amplitude_V / 1e3:g} kV | {b.mass_kg * 1e3:g} g | {_fmt(b.peak_frequency_Hz, 6)} | "
+                   f"[{_fmt(b.peak_frequency_ci_Hz[0], 6)}, {_fmt(b.peak_frequency_ci_Hz[1], 6)}] | "
+                   f"{_fmt(b.peak_d_rms_m * 1e6)} | [{_fmt(b.peak_d_rms_ci_m[0] * 1e6)}, "
+                   f"{_fmt(b.peak_d_rms_ci_m[1] * 1e6)}] | {_fmt(100 * rel, 3) if rel is not None else '-'} % | "
+                   f"{b.n_failed} |")
+    out.append("")
+    return out
 
 
 def _stats_table(stats) -> str:

@@ -20,7 +20,7 @@ def test_register_adds_both_subcommands():
     assert set(parsers) == {"synth", "identify"}
     args = parser.parse_args(["identify", "data", "--out", "o", "--json", "--quiet", "--static-method", "paper",
                               "--frequency-method", "integration"])
-    assert args.func.__name__ == "cmd_identify" and args.static_method == "paper"
+    assert args.func.__name__ == "cmd_identify" and args.static_method == "paper" and args.data == ["data"]
     assert args.frequency_method == "integration" and args.json and args.quiet
     args = parser.parse_args(["synth", "--membrane", "A1", "--noise", "1e-6", "--out", "d", "--seed", "3"])
     assert args.func.__name__ == "cmd_synth" and args.seed == 3
@@ -34,10 +34,15 @@ def test_synth_then_identify_json(tmp_path, capsys):
                "--frequencies", "2,8.3,9.5,11.2,40", "--quiet"])
     assert rc == 0 and (data / "manifest.yaml").is_file() and (data / "truth.yaml").is_file()
     out = tmp_path / "fit"
-    rc = main(["identify", str(data), "--out", str(out), "--json", "--quiet", "--no-plots"])
+    rc = main(["identify", str(data), "--out", str(out), "--json", "--quiet", "--no-plots",
+               "--uncertainty-samples", "8"])
     assert rc == 0
     report = json.loads(capsys.readouterr().out)
     assert report["membrane"] == "A2"
+    band = report["uncertainty"][0]          # the frequency-response band (8 samples keep the test short)
+    assert band["samples"] + band["failed_samples"] == 8 and band["amplitude_V"] == 2500.0
+    lo, hi = band["peak_frequency_ci_Hz"]
+    assert 0 < lo < hi < 2 * band["peak_frequency_Hz"]
     assert set(report["timings_s"]) >= {"load", "static_fit", "dynamic_fit", "evaluation", "report", "total"}
     assert report["dynamic_fit"]["fit_frequencies_Hz"] == [8.3, 11.2, 40.0]  # the paper's, those present
     assert report["metrics"]["steps"][0]["rms_error_um"] == pytest.approx(1.0, abs=0.05)
