@@ -282,7 +282,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import Range
 from dea_ros.nodes.common import SENSOR_QOS, make_range
 rclpy.init(); n = Node('laser_source'); pub = n.create_publisher(Range, 'displacement', SENSOR_QOS)
-duration = float(sys.argv[1]); d = float(sys.argv[2]); time.sleep(3.0)
+duration = float(sys.argv[1]); d = float(sys.argv[2])
+# wait until the node under test is up (a loaded machine: 10+ s), then 1 s more
+t_wait = time.monotonic() + 120.0
+while pub.get_subscription_count() == 0 and time.monotonic() < t_wait: time.sleep(0.05)
+time.sleep(1.0)
 t_end = time.monotonic() + duration; k = 0; next_t = time.monotonic()
 while time.monotonic() < t_end:
     pub.publish(make_range(d, n.get_clock().now().nanoseconds, 'dea_laser')); k += 1
@@ -317,7 +321,7 @@ def bench_controller_timing(seconds, env, params_file, d):
         arrivals.append(time.monotonic())
 
     node.create_subscription(BatteryState, "position_controller_node/command_stamped", on_cmd, SENSOR_QOS)
-    t_end = time.monotonic() + seconds + 6.0
+    t_end = time.monotonic() + seconds + 130.0
     while time.monotonic() < t_end and source.poll() is None:
         rclpy.spin_once(node, timeout_sec=0.01)
     sent = int(source.communicate(timeout=10)[0].strip() or 0)

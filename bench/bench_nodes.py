@@ -33,7 +33,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import BatteryState
 from dea_ros.nodes.common import SENSOR_QOS, make_voltage_state
 rclpy.init(); n = Node('voltage_source'); pub = n.create_publisher(BatteryState, 'voltage', SENSOR_QOS)
-duration = float(sys.argv[1]); time.sleep(2.0)
+duration = float(sys.argv[1])
+# wait until the node under test is up (a loaded machine: 10+ s), then 1 s more
+t_wait = time.monotonic() + 120.0
+while pub.get_subscription_count() == 0 and time.monotonic() < t_wait: time.sleep(0.05)
+time.sleep(1.0)
 t_end = time.monotonic() + duration; k = 0; next_t = time.monotonic()
 while time.monotonic() < t_end:
     u = 2200.0 if (k // 500) % 2 else 0.0
@@ -65,7 +69,7 @@ def bench_latency(seconds: float, env) -> dict:
         lat.append((now - (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)) * 1e-9)
 
     node.create_subscription(Range, "displacement_predicted", on_pred, SENSOR_QOS)
-    t_end = time.monotonic() + seconds + 4.0
+    t_end = time.monotonic() + seconds + 130.0
     while time.monotonic() < t_end and source.poll() is None:
         rclpy.spin_once(node, timeout_sec=0.01)
     sent = int(source.communicate(timeout=10)[0].strip() or 0)
