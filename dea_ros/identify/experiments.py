@@ -411,6 +411,10 @@ class SineSeries:
     voltage_V: np.ndarray
     displacement_m: np.ndarray
     source: str = "sine series"
+    #: what the voltage samples are: "linear" (samples of a continuous waveform, the default) or
+    #: "zoh" (a zero-order hold: each value applied from its sample until the next one, as the
+    #: amplifier output recorded in a bag); it decides :meth:`measured_input`
+    voltage_hold: str = "linear"
 
     def __post_init__(self):
         src = self.source
@@ -420,6 +424,8 @@ class SineSeries:
         n = _check_lengths(src, time_s=t, voltage_V=u, displacement_m=d)
         if n < 20:
             raise ExperimentError(f"{src}: {n} samples are too few for a sine record (need >= 20)")
+        if self.voltage_hold not in ("zoh", "linear"):
+            raise ExperimentError(f"{src}: voltage_hold must be 'zoh' or 'linear', got {self.voltage_hold!r}")
         _check_time(t, "time_s", src)
         _check_voltage(u, "voltage_V", src)
         _check_displacement(d, "displacement_m", src)
@@ -534,22 +540,30 @@ class SineSeries:
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
 
-        The model sees u^2 only (eq. 6): u^2 over the whole periods of the record is projected
-        on harmonics 0..``harmonics`` of the excitation frequency (least squares: the period
-        average of what the membrane received, with command jitter, zero-order hold and slew
-        limiting included), then u = sqrt(u^2) is sampled at ``samples`` phases.
+        The model sees u^2 only (eq. 6): the harmonics 0..``harmonics`` of the excitation
+        frequency of u^2 over whole periods of the record (the period average of what the
+        membrane received, with command jitter and slew limiting included), then u = sqrt(u^2)
+        sampled at ``samples`` phases. How u^2 between the samples is known depends on
+        ``voltage_hold``: ``zoh`` (a held staircase, as an amplifier fed by a DAQ or a command
+        topic at a finite rate applies it): the Fourier integrals of the piecewise-constant u^2
+        are exact, so the hold's sinc(2 f / f_hold) attenuation of the 2f component and its
+        half-step delay are in the input; ``linear`` (samples of a continuous waveform):
+        least-squares projection of the samples.
         """
         from ..solvers.inputs import SampledPeriodic
 
-        keep = self.whole_periods()
-        theta = 2.0 * np.pi * self.frequency_Hz * (self.time_s[keep] - self.time_s[0])
-        u2 = self.voltage_V[keep] ** 2
+        t = self.time_s - self.time_s[0]
+        fs = 1.0 / float(np.median(np.diff(t)))
         # only harmonics below the Nyquist frequency of the samples (above it the projection aliases)
-        fs = 1.0 / float(np.median(np.diff(self.time_s)))
         harmonics = max(2, min(int(harmonics), int(0.45 * fs / self.frequency_Hz)))
         k = np.arange(1, harmonics + 1)
-        basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
-        coeffs, *_ = np.linalg.lstsq(basis, u2, rcond=None)
+        if self.voltage_hold == "zoh":
+            coeffs, keep = self._held_square_harmonics(k, 1.0 / fs)
+        else:
+            keep = self.whole_periods()
+            theta = 2.0 * np.pi * self.frequency_Hz * t[keep]
+            basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
+            coeffs, *_ = np.linalg.lstsq(basis, self.voltage_V[keep] ** 2, rcond=None)
         phase = 2.0 * np.pi * np.arange(samples) / samples
         grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
         u = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
@@ -560,6 +574,24 @@ class SineSeries:
                 f"{harmonics} harmonics (projection peaks at {np.max(u):.0f} V, data at {peak:.0f} V); "
                 "record more samples per period")
         return SampledPeriodic(u, self.frequency_Hz)
+
+    def _held_square_harmonics(self, k: np.ndarray, dt: float):
+        """Coefficients (mean, cos k, sin k) of the held u^2 over the largest whole number of periods
+        in [t0, t_last + dt) (the last value holds for one sample interval); exact integrals."""
+        t = self.time_s - self.time_s[0]
+        w = 2.0 * np.pi * self.frequency_Hz
+        n = int(math.floor((t[-1] + dt) * self.frequency_Hz + 1e-9))
+        if n < 1:
+            raise ExperimentError(f"{self.source}: shorter than one period at {self.frequency_Hz:g} Hz")
+        length = n / self.frequency_Hz
+        a = np.minimum(t, length)
+        b = np.minimum(np.r_[t[1:], t[-1] + dt], length)
+        u2 = self.voltage_V ** 2
+        kw = (k * w)[:, None]
+        mean = float(u2 @ (b - a)) / length
+        cos_k = 2.0 / length * ((np.sin(kw * b) - np.sin(kw * a)) / kw) @ u2
+        sin_k = 2.0 / length * ((np.cos(kw * a) - np.cos(kw * b)) / kw) @ u2
+        return np.r_[mean, cos_k, sin_k], t < length
 
 
 def _interpolant_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
