@@ -152,6 +152,7 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         StaticData,
         StepData,
         GEOMETRY_FIELDS,
+        periodic_input_from_record,
     )
     from ..model import load_parameters
 
@@ -211,8 +212,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
             t, d = window(seg["measure_start_s"], seg["measure_end_s"])
             if t.size < 20:
                 raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
-            s = SineSeries(f, t - t[0], voltage_at(t), d, source=f"{path} sine {f:g} Hz")
-            series.append((s, float(seg["amplitude_V"])))
+            s = SineSeries(f, t - t[0], voltage_at(t), d, source=f"{path} sine {f:g} Hz", voltage_hold="zoh")
+            # the applied voltage is the amplifier's recorded output, each value held from its stamp
+            # until the next: its own time line (not the laser's) carries the hold exactly
+            inside = (tv > t[0]) & (tv < t[-1])
+            held_t = np.r_[t[0], tv[inside]] - t[0]
+            held_u = np.r_[voltage_at(t[:1]), uv[inside]]
+            series.append((s, float(seg["amplitude_V"]), float(seg.get("offset_V", 0.0)), held_t, held_u))
         elif kind == "rest":
             continue
         else:
@@ -223,14 +229,18 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
                          source=f"{path} static segments")] if static_m else []
     sines = []
     if series:
-        freqs = np.array([s.frequency_Hz for s, _ in series])
-        amps = np.array([a for _, a in series])
-        rms = np.array([s.displacement_rms(rest_d0) for s, _ in series])
+        freqs = np.array([s[0].frequency_Hz for s in series])
+        amps = np.array([s[1] for s in series])
+        rms = np.array([s[0].displacement_rms(rest_d0) for s in series])
         # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
         # not the nominal sine: fit and evaluate with the measured waveforms
-        inputs = tuple(s.measured_input() for s, _ in series) if measured_inputs else ()
+        inputs = tuple(periodic_input_from_record(ht, hu, s.frequency_Hz, "zoh", source=s.source)
+                       for s, _a, _o, ht, hu in series) if measured_inputs else ()
+        # without offset the identifier applies |U sin| (a unipolar amplifier; protocols._sine)
+        unipolar = all(o == 0.0 and np.min(s.voltage_V) >= 0.0 for s, _a, o, _t, _u in series)
         sines = [SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, rest_d0),
-                          series=tuple(s for s, _ in series), source=f"{path} sine segments", inputs=inputs)]
+                          series=tuple(s[0] for s in series), source=f"{path} sine segments", inputs=inputs,
+                          waveform="abs_sine" if unipolar else "sine")]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:
         return ExperimentSet(

@@ -538,60 +538,64 @@ class SineSeries:
                 "noise_m": sigma, "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
-        """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
+        """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic):
+        :func:`periodic_input_from_record` of this record's voltage with its ``voltage_hold``."""
+        return periodic_input_from_record(self.time_s, self.voltage_V, self.frequency_Hz, self.voltage_hold,
+                                          harmonics, samples, self.source)
 
-        The model sees u^2 only (eq. 6): the harmonics 0..``harmonics`` of the excitation
-        frequency of u^2 over whole periods of the record (the period average of what the
-        membrane received, with command jitter and slew limiting included), then u = sqrt(u^2)
-        sampled at ``samples`` phases. How u^2 between the samples is known depends on
-        ``voltage_hold``: ``zoh`` (a held staircase, as an amplifier fed by a DAQ or a command
-        topic at a finite rate applies it): the Fourier integrals of the piecewise-constant u^2
-        are exact, so the hold's sinc(2 f / f_hold) attenuation of the 2f component and its
-        half-step delay are in the input; ``linear`` (samples of a continuous waveform):
-        least-squares projection of the samples.
-        """
-        from ..solvers.inputs import SampledPeriodic
 
-        t = self.time_s - self.time_s[0]
-        fs = 1.0 / float(np.median(np.diff(t)))
-        # only harmonics below the Nyquist frequency of the samples (above it the projection aliases)
-        harmonics = max(2, min(int(harmonics), int(0.45 * fs / self.frequency_Hz)))
-        k = np.arange(1, harmonics + 1)
-        if self.voltage_hold == "zoh":
-            coeffs, keep = self._held_square_harmonics(k, 1.0 / fs)
-        else:
-            keep = self.whole_periods()
-            theta = 2.0 * np.pi * self.frequency_Hz * t[keep]
-            basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
-            coeffs, *_ = np.linalg.lstsq(basis, self.voltage_V[keep] ** 2, rcond=None)
-        phase = 2.0 * np.pi * np.arange(samples) / samples
-        grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
-        u = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
-        peak = float(np.max(np.abs(self.voltage_V[keep])))
-        if np.max(u) > 1.05 * peak + 1.0:
-            raise ExperimentError(
-                f"{self.source}: the applied voltage at {self.frequency_Hz:g} Hz cannot be represented with "
-                f"{harmonics} harmonics (projection peaks at {np.max(u):.0f} V, data at {peak:.0f} V); "
-                "record more samples per period")
-        return SampledPeriodic(u, self.frequency_Hz)
+def periodic_input_from_record(time_s, voltage_V, frequency_Hz: float, hold: str = "linear",
+                               harmonics: int = 24, samples: int = 256, source: str = "sine record"):
+    """The voltage actually applied during a record, as one period for harmonic balance
+    (a SampledPeriodic, phase 0 at the first sample).
 
-    def _held_square_harmonics(self, k: np.ndarray, dt: float):
-        """Coefficients (mean, cos k, sin k) of the held u^2 over the largest whole number of periods
-        in [t0, t_last + dt) (the last value holds for one sample interval); exact integrals."""
-        t = self.time_s - self.time_s[0]
-        w = 2.0 * np.pi * self.frequency_Hz
-        n = int(math.floor((t[-1] + dt) * self.frequency_Hz + 1e-9))
+    The model sees u^2 only (eq. 6): the harmonics 0..``harmonics`` of the excitation frequency
+    of u^2 over whole periods of the record (the period average of what the membrane received,
+    with command jitter and slew limiting included), then u = sqrt(u^2) sampled at ``samples``
+    phases. How u^2 between the samples is known depends on ``hold``: ``zoh`` (a held staircase,
+    as an amplifier fed by a DAQ or a command topic at a finite rate applies it; each value from
+    its time stamp until the next): the Fourier integrals of the piecewise-constant u^2 are
+    exact, so the hold's sinc(2 f / f_hold) attenuation of the 2f component and its half-step
+    delay are in the input; ``linear`` (samples of a continuous waveform): least-squares
+    projection of the samples.
+    """
+    from ..solvers.inputs import SampledPeriodic
+
+    t = np.asarray(time_s, float) - float(time_s[0])
+    u = np.asarray(voltage_V, float)
+    f = float(frequency_Hz)
+    dt = float(np.median(np.diff(t)))
+    # only harmonics below the Nyquist frequency of the samples (above it the projection aliases,
+    # and a staircase has its images of the hold rate there)
+    harmonics = max(2, min(int(harmonics), int(0.45 / (dt * f))))
+    k = np.arange(1, harmonics + 1)
+    if hold == "zoh":
+        n = int(math.floor((t[-1] + dt) * f + 1e-9))   # the last value holds one sample interval
         if n < 1:
-            raise ExperimentError(f"{self.source}: shorter than one period at {self.frequency_Hz:g} Hz")
-        length = n / self.frequency_Hz
+            raise ExperimentError(f"{source}: shorter than one period at {f:g} Hz")
+        length = n / f
         a = np.minimum(t, length)
         b = np.minimum(np.r_[t[1:], t[-1] + dt], length)
-        u2 = self.voltage_V ** 2
-        kw = (k * w)[:, None]
-        mean = float(u2 @ (b - a)) / length
-        cos_k = 2.0 / length * ((np.sin(kw * b) - np.sin(kw * a)) / kw) @ u2
-        sin_k = 2.0 / length * ((np.cos(kw * a) - np.cos(kw * b)) / kw) @ u2
-        return np.r_[mean, cos_k, sin_k], t < length
+        kw = (2.0 * np.pi * f * k)[:, None]
+        u2 = u * u
+        coeffs = np.r_[float(u2 @ (b - a)) / length,
+                       2.0 / length * ((np.sin(kw * b) - np.sin(kw * a)) / kw) @ u2,
+                       2.0 / length * ((np.cos(kw * a) - np.cos(kw * b)) / kw) @ u2]
+        keep = t < length
+    else:
+        keep = period_weights(t, f, source)[0] > 0
+        theta = 2.0 * np.pi * f * t[keep]
+        basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
+        coeffs, *_ = np.linalg.lstsq(basis, u[keep] ** 2, rcond=None)
+    phase = 2.0 * np.pi * np.arange(samples) / samples
+    grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
+    period = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
+    peak = float(np.max(np.abs(u[keep])))
+    if np.max(period) > 1.05 * peak + 1.0:
+        raise ExperimentError(
+            f"{source}: the applied voltage at {f:g} Hz cannot be represented with {harmonics} harmonics "
+            f"(projection peaks at {np.max(period):.0f} V, data at {peak:.0f} V); record more samples per period")
+    return SampledPeriodic(period, f)
 
 
 def _interpolant_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
@@ -1140,4 +1144,4 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
 
 
 __all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings", "period_weights",
-            "rms_statistics"]
+            "rms_statistics", "periodic_input_from_record"]
