@@ -41,6 +41,7 @@ from pathlib import Path
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.time import Time
 from rclpy.qos import HistoryPolicy, QoSProfile
 from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
@@ -305,28 +306,30 @@ class IdentifierNode(Node):
     def on_applied_voltage(self, msg: BatteryState) -> None:
         """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if stamp_ns > self.last_trigger_ns:
+        if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
             self.last_trigger_ns = stamp_ns
-            self.on_tick()
+            self.on_tick(stamp_ns)
 
     def on_wait_tick(self) -> None:
         """``command_trigger: applied_voltage``: the wait for the rig times out without amplifier output."""
-        if self.state in ("starting", "waiting"):
+        if self.state in ("starting", "waiting") and self.now_ns() > 0:
             self.on_tick()
 
-    def on_tick(self) -> None:
+    def on_tick(self, now_ns: int | None = None) -> None:
+        """One command. ``now_ns``: the tick's time (default: the node's clock)."""
+        now_ns = self.now_ns() if now_ns is None else int(now_ns)
         if self.state == "starting":
             self.state = "waiting"
             self.wait_started = time.monotonic()
         if self.state == "waiting":
             self.cmd_pub.publish(Float64(data=0.0))
-            self.publish_ack()
+            self.publish_ack(now_ns)
             if all(self.rig_seen.values()):
                 self.state = "running"
                 for sub in self.ready_subs:  # only needed to start: halve the callbacks
                     self.destroy_subscription(sub)
                 self.ready_subs = []
-                self.t0_ns = self.now_ns()
+                self.t0_ns = now_ns
                 try:
                     self.record_experiment_metadata(0, aborted=False)
                 except BagError as exc:
@@ -341,7 +344,7 @@ class IdentifierNode(Node):
             return
         if self.state != "running":
             return
-        t = (self.now_ns() - self.t0_ns) * 1e-9
+        t = (now_ns - self.t0_ns) * 1e-9
         k = self.segment_index if self.segment_index >= 0 else 0
         while k < len(self.segments) and t >= self.segments[k].end_s:
             k += 1
@@ -359,7 +362,7 @@ class IdentifierNode(Node):
             event = json.dumps({"event": "segment_start", **seg.to_dict()})
             self.segment_pub.publish(String(data=event))
             try:
-                self.bag.write(self.segment_topic, {"data": event}, self.now_ns())
+                self.bag.write(self.segment_topic, {"data": event}, now_ns)
             except BagError as exc:
                 self.recording_failed(exc)
                 return
@@ -369,12 +372,13 @@ class IdentifierNode(Node):
             )
         # one command period ahead: the amplifier applies it at its next update, on time
         self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + 1.0 / self.command_rate_hz))))
-        self.publish_ack()
+        self.publish_ack(now_ns)
 
-    def publish_ack(self) -> None:
-        """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = now)."""
+    def publish_ack(self, stamp_ns: int | None = None) -> None:
+        """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = the
+        tick's time, at least now)."""
         ack = Header()
-        ack.stamp = self.get_clock().now().to_msg()
+        ack.stamp = Time(nanoseconds=max(self.now_ns(), int(stamp_ns or 0)), clock_type=ClockType.ROS_TIME).to_msg()
         ack.frame_id = self.get_name()
         self.ack_pub.publish(ack)
 
