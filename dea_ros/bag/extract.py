@@ -20,7 +20,10 @@ rosbag2 bag, give the same information as a YAML file (``segments_file``)::
 Static: mean displacement over the measurement window. Step: voltage (zero-order hold of the
 applied voltage) and displacement at the displacement samples of the segment. Sine: RMS of
 d - d0 over whole periods of the window (eq. 21), d0 = the measured rest position at 0 V
-(static segment at 0 V, else the start of the recording), with the sampled series attached.
+(static segment at 0 V, else the start of the recording), with the sampled series attached; the
+laser noise (from the static segments) is removed from the mean square and gives each RMS its
+standard uncertainty. The fit's input is the recorded voltage held from each stamp (the
+amplifier's zero-order hold).
 """
 from __future__ import annotations
 
@@ -153,6 +156,8 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         StepData,
         GEOMETRY_FIELDS,
         periodic_input_from_record,
+        rms_statistics,
+        third_difference_noise,
     )
     from ..model import load_parameters
 
@@ -187,7 +192,8 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         idx = np.clip(np.searchsorted(tv, t + 1e-6, side="right") - 1, 0, tv.size - 1)
         return uv[idx]
 
-    static_m, static_u, static_d = [], [], []
+    static_m, static_u, static_d, static_noise = [], [], [], []
+    rest_n = 0
     steps, series = [], []
     rest_d0 = None
     for k, seg in enumerate(segments):
@@ -200,8 +206,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
             static_m.append(mass)
             static_u.append(u)
             static_d.append(float(np.mean(d)))
+            # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
+            sigma = third_difference_noise(d)
+            if sigma is not None:
+                static_noise.append(sigma)
             if abs(u) < 1.0 and rest_d0 is None:
                 rest_d0 = float(np.mean(d))
+                rest_n = t.size
         elif kind == "step":
             t, d = window(seg["start_s"], seg["end_s"])
             if t.size < 20:
@@ -231,7 +242,14 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
     if series:
         freqs = np.array([s[0].frequency_Hz for s in series])
         amps = np.array([s[1] for s in series])
-        rms = np.array([s[0].displacement_rms(rest_d0) for s in series])
+        # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
+        # from the static segments (a sine record sampled at 500 Hz moves too fast for the third
+        # differences); without static segments the RMS carries no stated uncertainty
+        noise = float(np.sqrt(np.mean(np.square(static_noise)))) if static_noise else None
+        d0_std = noise / math.sqrt(rest_n) if (noise is not None and rest_n) else 0.0
+        stats = [rms_statistics(s[0], rest_d0, noise, d0_std) for s in series]
+        rms = np.array([v for v, _ in stats])
+        std = np.array([e for _, e in stats]) if all(e is not None for _, e in stats) else None
         # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
         # not the nominal sine: fit and evaluate with the measured waveforms
         inputs = tuple(periodic_input_from_record(ht, hu, s.frequency_Hz, "zoh", source=s.source)
@@ -240,6 +258,7 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         unipolar = all(o == 0.0 and np.min(s.voltage_V) >= 0.0 for s, _a, o, _t, _u in series)
         sines = [SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, rest_d0),
                           series=tuple(s[0] for s in series), source=f"{path} sine segments", inputs=inputs,
+                          d_rms_std_m=std,
                           waveform="abs_sine" if unipolar else "sine")]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:

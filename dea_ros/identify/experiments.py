@@ -462,7 +462,7 @@ class SineSeries:
 
     def noise_m(self) -> float | None:
         """Laser noise sigma estimated from the record's third differences (see :func:`estimate_noise_m`)."""
-        return _third_difference_noise(self.displacement_m)
+        return third_difference_noise(self.displacement_m)
 
     def classify(self, noise_m: float | None = None) -> dict:
         """What the record shows, from the data alone: ``periodic`` (period T/2 of u^2),
@@ -666,7 +666,10 @@ def rms_statistics(series: "SineSeries", d0_m: float, noise_m: float | None = No
     return rms, math.sqrt(var)
 
 
-def _third_difference_noise(d, min_samples: int = 20) -> float | None:
+def third_difference_noise(d, min_samples: int = 20) -> float | None:
+    """White-noise sigma of samples d from their third differences (variance 20 sigma^2; robust
+    spread): slow motion (ringing, creep, a sine well below the sample rate) hardly enters.
+    None for fewer than ``min_samples`` samples."""
     d = np.asarray(d, float)
     if d.size < min_samples:
         return None
@@ -1054,7 +1057,7 @@ def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
     insensitive to the response itself. A robust spread (1.4826 x median absolute deviation)
     ignores the few samples around the voltage step. None for fewer than ``min_samples`` samples.
     """
-    return _third_difference_noise(step.displacement_m, min_samples)
+    return third_difference_noise(step.displacement_m, min_samples)
 
 
 def rest_warning(step: StepData, noise_m: float | None) -> str | None:
@@ -1144,4 +1147,4 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
 
 
 __all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings", "period_weights",
-            "rms_statistics", "periodic_input_from_record"]
+            "rms_statistics", "periodic_input_from_record", "third_difference_noise"]

@@ -381,8 +381,13 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             if sine.d_rms_std_m is not None and np.isfinite(model):
                 z = f"{(model - c['measured_rms_m']) / sine.d_rms_std_m[c['index']]:+.2f}"
             used = c["used"] if c["used"] != "left out" else f"left out: {c.get('reason', '')}"
+            model_kind = c.get("model_kind") or "-"
+            if c.get("coexisting"):
+                model_kind = "coexisting: " + "; ".join(
+                    f"{b['kind']} {b['d_rms_m'] * 1e6:.4g} um" + (" (fitted)" if b["fitted"] else "")
+                    for b in c["coexisting"])
             out.append(f"| {c['frequency_Hz']:g} | {c['measured_rms_m'] * 1e6:.4g} | {c.get('data_kind') or '-'} | "
-                       f"{c.get('model_kind') or '-'} | {used} | "
+                       f"{model_kind} | {used} | "
                        f"{_fmt(model * 1e6) if np.isfinite(model) else '-'} | {z} |")
         _ = ev_fr
         out.append("")
