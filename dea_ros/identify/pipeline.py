@@ -539,6 +539,11 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
             series_out.append({"series": ser, "model_m": model_d, "rms_error_um": rms_e, "phase_rad": phase,
                                "kind": c["used"]})
             entry.setdefault("series_rms_error_um", {})[f"{ser.frequency_Hz:g} Hz"] = rms_e
+            sigma = noise if noise is not None else ser.noise_m()
+            if sigma is not None and rms_e > 3.0 * sigma * 1e6:
+                warnings.append(f"{ser.source}: the model does not reproduce the sampled record: RMS error "
+                                f"{rms_e:.3g} um against {sigma * 1e6:.2g} um laser noise (a transient that has not "
+                                "died out, an excitation the model does not see, or a model error)")
         freq_metrics.append(entry)
         curves["sines"].append({"sine": sine, "model_at_data_m": model_at_data, "used": used,
                                 "dense": dense_curves, "series": series_out})
