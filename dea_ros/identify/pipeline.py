@@ -536,8 +536,10 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
                 continue
             e = (model_d - ser.displacement_m) * 1e6
             rms_e = float(np.sqrt(np.mean(e**2)))
+            how = "driven by the recorded voltage" if sine.inputs else "aligned on the phase of u^2"
             series_out.append({"series": ser, "model_m": model_d, "rms_error_um": rms_e, "phase_rad": phase,
-                               "kind": c["used"]})
+                               "kind": c["used"], "how": how})
+            entry["series_model"] = how
             entry.setdefault("series_rms_error_um", {})[f"{ser.frequency_Hz:g} Hz"] = rms_e
             sigma = noise if noise is not None else ser.noise_m()
             if sigma is not None and rms_e > 3.0 * sigma * 1e6:
