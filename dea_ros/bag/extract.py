@@ -22,7 +22,8 @@ applied voltage) and displacement at the displacement samples of the segment. Si
 d - d0 over whole periods of the window (eq. 21), d0 = the measured rest position at 0 V
 (static segment at 0 V, else the start of the recording), with the sampled series attached; the
 laser noise (from the static segments) is removed from the mean square and gives each RMS its
-standard uncertainty. The fit's input is the recorded voltage held from each stamp (the
+standard uncertainty (plus, for a record whose halves differ by more than 3 sigma, that difference:
+it has not settled). The fit's input is the recorded voltage held from each stamp (the
 amplifier's zero-order hold).
 """
 from __future__ import annotations
@@ -250,6 +251,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         stats = [rms_statistics(s[0], rest_d0, noise, d0_std) for s in series]
         rms = np.array([v for v, _ in stats])
         std = np.array([e for _, e in stats]) if all(e is not None for _, e in stats) else None
+        if std is not None:
+            # a record that has not settled (its halves' d_rms differ by > 3 sigma): the difference
+            # is the size of its remaining transient, an uncertainty the noise does not state
+            for k, (s, *_rest) in enumerate(series):
+                change, change_std = s.settling_m(rest_d0, noise)
+                if change_std > 0 and abs(change) > 3.0 * change_std:
+                    std[k] = math.hypot(std[k], change)
         # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
         # not the nominal sine: fit and evaluate with the measured waveforms
         inputs = tuple(periodic_input_from_record(ht, hu, s.frequency_Hz, "zoh", source=s.source)

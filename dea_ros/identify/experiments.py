@@ -460,6 +460,25 @@ class SineSeries:
         uncertainty ``d0_std_m`` of the rest position (linearised)."""
         return rms_statistics(self, d0_m, noise_m, d0_std_m)[1]
 
+    def settling_m(self, d0_m: float, noise_m: float, d0_std_m: float = 0.0) -> tuple:
+        """(d_rms of the second half - first half of the whole periods, its standard uncertainty
+        from the noise): a record that has not settled (a transient still decaying) shows a
+        difference well beyond its uncertainty. (0, 0) for fewer than two periods."""
+        n = int(math.floor(float(self.time_s[-1] - self.time_s[0]) * self.frequency_Hz + 1e-9))
+        if n < 2:
+            return 0.0, 0.0
+        t = self.time_s - self.time_s[0]
+        half = (n // 2) / self.frequency_Hz
+        parts = []
+        for keep in (t <= half + 1e-9, (t >= half - 1e-9) & (t <= 2 * half + 1e-9)):
+            if np.count_nonzero(keep) < 20:
+                return 0.0, 0.0
+            piece = SineSeries(self.frequency_Hz, t[keep], self.voltage_V[keep], self.displacement_m[keep],
+                               self.source, self.voltage_hold)
+            parts.append(rms_statistics(piece, d0_m, noise_m, 0.0))
+        (a, ea), (b, eb) = parts
+        return b - a, math.hypot(ea or 0.0, eb or 0.0)
+
     def noise_m(self) -> float | None:
         """Laser noise sigma estimated from the record's third differences (see :func:`estimate_noise_m`)."""
         return third_difference_noise(self.displacement_m)

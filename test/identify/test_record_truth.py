@@ -102,5 +102,7 @@ def test_a_sampled_record_with_a_transient_left_is_reported(integrated, seed):
                             mass_kg=UNLIKE.mass_kg, sines=[sine], base_parameters=UNLIKE, sensor_noise_m=1e-6)
         _m, _c, warnings = evaluate(UNLIKE, exp, sweep_points=20)
         warned[label] = [w for w in warnings if "does not reproduce the sampled record" in w]
+        change, change_std = ser.settling_m(d0, 1e-6)        # halves' d_rms: the bag's settling test
+        assert (abs(change) > 3 * change_std) == (label == "ringing"), (label, change, change_std)
     assert not warned["settled"]
     assert len(warned["ringing"]) == 1
