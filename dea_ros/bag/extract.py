@@ -237,6 +237,8 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
             raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
     if rest_d0 is None:  # the rest position before the first command
         rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
+    # the laser noise, from the static segments (third differences at a constant voltage)
+    noise = float(np.sqrt(np.mean(np.square(static_noise)))) if static_noise else None
     static = [StaticData(np.array(static_m), np.array(static_u), np.array(static_d),
                          source=f"{path} static segments")] if static_m else []
     sines = []
@@ -246,7 +248,6 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
         # from the static segments (a sine record sampled at 500 Hz moves too fast for the third
         # differences); without static segments the RMS carries no stated uncertainty
-        noise = float(np.sqrt(np.mean(np.square(static_noise)))) if static_noise else None
         d0_std = noise / math.sqrt(rest_n) if (noise is not None and rest_n) else 0.0
         stats = [rms_statistics(s[0], rest_d0, noise, d0_std) for s in series]
         rms = np.array([v for v, _ in stats])
@@ -273,6 +274,7 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         return ExperimentSet(
             membrane=str(info.get("membrane_name", base.name)), geometry=geometry, mass_kg=mass,
             static=static, steps=steps, sines=sines, base_parameters=base, base_reference=str(membrane_ref),
+            sensor_noise_m=noise,
             folder=Path(path),
         )
     except ExperimentError as exc:
