@@ -239,6 +239,7 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
     # the laser noise, from the static segments (third differences at a constant voltage)
     noise = float(np.sqrt(np.mean(np.square(static_noise)))) if static_noise else None
+    noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
     static = [StaticData(np.array(static_m), np.array(static_u), np.array(static_d),
                          source=f"{path} static segments")] if static_m else []
     sines = []
