@@ -13,7 +13,10 @@ For every parameter: the largest error over the seeds and in how many seeds the 
 covers the truth; sigma_h''(1): identified or not, and its error when identified; the model's
 resonance peak against the true model's (both located on the branch).
 
-Run: python bench/bench_coverage.py [--seeds 10]   (markdown to stdout and bench/results/coverage.md)
+Run: python bench/bench_coverage.py [--seeds 10] [--first-seed 1] [--kinds wide,paper] [--out coverage.md]
+(markdown to stdout and bench/results/<out>). The z column: (value - truth) / std. error over the
+seeds, mean (with its standard error) and standard deviation: a real under-coverage shows as a mean
+away from 0 (bias) or a std above 1 (intervals too narrow), a chance one does not.
 """
 from __future__ import annotations
 
@@ -62,6 +65,7 @@ def run(kind: str, seeds) -> list[str]:
     waveform = "abs_sine" if kind == "wide" else "sine"
     true_peak = peak(UNLIKE)
     errs = {n: [] for n in NAMES}
+    zs = {n: [] for n in NAMES}
     cover = {n: 0 for n in NAMES}
     fitted = {n: 0 for n in NAMES}
     curv_ok = []
@@ -81,6 +85,7 @@ def run(kind: str, seeds) -> list[str]:
             tv = truth(n)
             fitted[n] += 1
             errs[n].append(100 * (st.values[i] / tv - 1))
+            zs[n].append((st.values[i] - tv) / st.std_error[i])
             cover[n] += int(st.ci_low[i] <= tv <= st.ci_high[i])
         curv_ok.append(bool(res.curvature_identified))
         pk = peak(res.parameters)
@@ -93,16 +98,20 @@ def run(kind: str, seeds) -> list[str]:
         if not fitted[n]:
             continue
         e = np.abs(errs[n])
+        z = np.array(zs[n])
+        # (value - truth) / std. error: mean 0 (no bias) and std 1 (intervals of the right width)
+        z_text = (f"{z.mean():+.2f} +- {z.std(ddof=1) / np.sqrt(z.size):.2f} / {z.std(ddof=1):.2f}"
+                  if z.size > 1 else "-")
         rows.append(f"| {kind} ({len(freqs)} freq.) | {n} | {np.max(e):.3g} % | {np.median(e):.3g} % | "
-                    f"{cover[n]} / {fitted[n]} |")
+                    f"{cover[n]} / {fitted[n]} | {z_text} |")
     pf = np.abs([p[0] for p in peak_err])
     pa = np.abs([p[1] for p in peak_err])
     rows.append(f"| {kind} ({len(freqs)} freq.) | resonance peak (f / d_rms) | {pf.max():.3g} % / {pa.max():.3g} % | "
-                f"{np.median(pf):.3g} % / {np.median(pa):.3g} % | - |")
+                f"{np.median(pf):.3g} % / {np.median(pa):.3g} % | - | |")
     rows.append(f"| {kind} ({len(freqs)} freq.) | sigma_h''(1) identified (written) | "
-                f"{sum(curv_ok)} / {len(curv_ok)} seeds | | - |")
+                f"{sum(curv_ok)} / {len(curv_ok)} seeds | | - | |")
     rows.append(f"| {kind} ({len(freqs)} freq.) | identification time | {max(times):.1f} s | "
-                f"{np.median(times):.1f} s | - |")
+                f"{np.median(times):.1f} s | - | |")
     return rows
 
 
@@ -110,19 +119,22 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--kinds", default="wide,paper")
+    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--out", default="coverage.md", help="file name in bench/results")
     args = ap.parse_args()
-    seeds = list(range(1, args.seeds + 1))
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     out = [f"Machine: {machine()}; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}", "",
            f"Membrane X7 (unlike the presets), 1 um noise, seeds {seeds[0]}-{seeds[-1]}; errors of the "
            "identified values, coverage of their 95 % intervals.", "",
-           "| data | parameter | max abs error | median abs error | 95 % CI covers the truth |",
-           "|---|---|---|---|---|"]
+           "| data | parameter | max abs error | median abs error | 95 % CI covers the truth | "
+           "z = (value - truth) / std. error: mean +- its std. error / std |",
+           "|---|---|---|---|---|---|"]
     for kind in args.kinds.split(","):
         out += run(kind, seeds)
     text = "\n".join(out) + "\n"
     print(text)
     Path(__file__).with_name("results").mkdir(exist_ok=True)
-    (Path(__file__).with_name("results") / "coverage.md").write_text(text)
+    (Path(__file__).with_name("results") / args.out).write_text(text)
 
 
 if __name__ == "__main__":

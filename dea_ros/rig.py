@@ -100,7 +100,10 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
     if sim_time:
-        mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz)
+        # the clock waits for the identifier's tick and for its command to reach the amplifier
+        # (identifier_node command_trigger applied_voltage): every command applied one update later
+        mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
+                    lockstep_topics="[identifier_node/tick_done, amplifier_node/command_received]")
     else:
         link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
         mock.update(laser_output="emulator", laser_port=link)
@@ -166,7 +169,8 @@ def cmd_rig_demo(args) -> int:
                   update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise)
         ident = rig.start("identifier_node", {
             "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
-            "exit_when_done": True, "command_rate_hz": args.rate, "membrane": args.membrane,
+            "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
+            "membrane": args.membrane,
             "identify": not args.no_identify, "rosbag2_format": args.rosbag2_format,
         })
         while ident.poll() is None:

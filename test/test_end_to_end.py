@@ -85,6 +85,31 @@ def test_identified_model_reproduces_the_mock(demo_run):
     assert abs(fitted.relative_permittivity - truth.relative_permittivity) / truth.relative_permittivity < 0.05
 
 
+def test_sine_commands_are_applied_one_update_later_without_jitter(demo_run):
+    """The recorded amplifier output at each update t_k is the protocol's |U sin| at t_k: the command
+    computed one update earlier, never at once (the jittered staircase the clock-tick race gave:
+    10-15 % of the updates a step early, which excited the resonance and made the 15/20 Hz records
+    irregular)."""
+    import json as json_
+    from dea_ros.bag.extract import EXPERIMENT_METADATA, read_signals
+    from dea_ros.protocols import load_protocol
+
+    signals = read_signals(demo_run[0] / "bag")
+    record = signals.metadata[EXPERIMENT_METADATA]
+    t0 = int(record["t0_ns"]) * 1e-9
+    schedule = {seg.index: seg for seg in load_protocol("test").schedule()}
+    t, u = signals.voltage_t_s - t0, signals.voltage_V
+    checked = 0
+    for seg in json_.loads(record["segments_json"]):
+        if seg["kind"] != "sine":
+            continue
+        inside = (t >= seg["measure_start_s"]) & (t < seg["measure_end_s"])
+        expected = np.array([schedule[seg["index"]].voltage_at(x) for x in t[inside]])
+        assert np.max(np.abs(u[inside] - expected)) < 2.0, seg["frequency_Hz"]
+        checked += int(inside.sum())
+    assert checked > 1000
+
+
 def _rules():
     spec = importlib.util.spec_from_file_location("rosbag2_rules", ROOT / "test" / "bag" / "rosbag2_rules.py")
     module = importlib.util.module_from_spec(spec)

@@ -20,7 +20,11 @@ rosbag2 bag, give the same information as a YAML file (``segments_file``)::
 Static: mean displacement over the measurement window. Step: voltage (zero-order hold of the
 applied voltage) and displacement at the displacement samples of the segment. Sine: RMS of
 d - d0 over whole periods of the window (eq. 21), d0 = the measured rest position at 0 V
-(static segment at 0 V, else the start of the recording), with the sampled series attached.
+(static segment at 0 V, else the start of the recording), with the sampled series attached; the
+laser noise (from the static segments) is removed from the mean square and gives each RMS its
+standard uncertainty (plus, for a record whose halves differ by more than 3 sigma, that difference:
+it has not settled). The fit's input is the recorded voltage held from each stamp (the
+amplifier's zero-order hold).
 """
 from __future__ import annotations
 
@@ -152,6 +156,9 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         StaticData,
         StepData,
         GEOMETRY_FIELDS,
+        periodic_input_from_record,
+        rms_statistics,
+        third_difference_noise,
     )
     from ..model import load_parameters
 
@@ -186,7 +193,8 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
         idx = np.clip(np.searchsorted(tv, t + 1e-6, side="right") - 1, 0, tv.size - 1)
         return uv[idx]
 
-    static_m, static_u, static_d = [], [], []
+    static_m, static_u, static_d, static_noise = [], [], [], []
+    rest_n = 0
     steps, series = [], []
     rest_d0 = None
     for k, seg in enumerate(segments):
@@ -199,8 +207,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
             static_m.append(mass)
             static_u.append(u)
             static_d.append(float(np.mean(d)))
+            # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
+            sigma = third_difference_noise(d)
+            if sigma is not None:
+                static_noise.append(sigma)
             if abs(u) < 1.0 and rest_d0 is None:
                 rest_d0 = float(np.mean(d))
+                rest_n = t.size
         elif kind == "step":
             t, d = window(seg["start_s"], seg["end_s"])
             if t.size < 20:
@@ -211,31 +224,58 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
             t, d = window(seg["measure_start_s"], seg["measure_end_s"])
             if t.size < 20:
                 raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
-            s = SineSeries(f, t - t[0], voltage_at(t), d, source=f"{path} sine {f:g} Hz")
-            series.append((s, float(seg["amplitude_V"])))
+            s = SineSeries(f, t - t[0], voltage_at(t), d, source=f"{path} sine {f:g} Hz", voltage_hold="zoh")
+            # the applied voltage is the amplifier's recorded output, each value held from its stamp
+            # until the next: its own time line (not the laser's) carries the hold exactly
+            inside = (tv > t[0]) & (tv < t[-1])
+            held_t = np.r_[t[0], tv[inside]] - t[0]
+            held_u = np.r_[voltage_at(t[:1]), uv[inside]]
+            series.append((s, float(seg["amplitude_V"]), float(seg.get("offset_V", 0.0)), held_t, held_u))
         elif kind == "rest":
             continue
         else:
             raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
     if rest_d0 is None:  # the rest position before the first command
         rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
+    # the laser noise, from the static segments (third differences at a constant voltage)
+    noise = float(np.sqrt(np.mean(np.square(static_noise)))) if static_noise else None
+    noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
     static = [StaticData(np.array(static_m), np.array(static_u), np.array(static_d),
                          source=f"{path} static segments")] if static_m else []
     sines = []
     if series:
-        freqs = np.array([s.frequency_Hz for s, _ in series])
-        amps = np.array([a for _, a in series])
-        rms = np.array([s.displacement_rms(rest_d0) for s, _ in series])
+        freqs = np.array([s[0].frequency_Hz for s in series])
+        amps = np.array([s[1] for s in series])
+        # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
+        # from the static segments (a sine record sampled at 500 Hz moves too fast for the third
+        # differences); without static segments the RMS carries no stated uncertainty
+        d0_std = noise / math.sqrt(rest_n) if (noise is not None and rest_n) else 0.0
+        stats = [rms_statistics(s[0], rest_d0, noise, d0_std) for s in series]
+        rms = np.array([v for v, _ in stats])
+        std = np.array([e for _, e in stats]) if all(e is not None for _, e in stats) else None
+        if std is not None:
+            # a record that has not settled (its halves' d_rms differ by > 3 sigma): the difference
+            # is the size of its remaining transient, an uncertainty the noise does not state
+            for k, (s, *_rest) in enumerate(series):
+                change, change_std = s.settling_m(rest_d0, noise)
+                if change_std > 0 and abs(change) > 3.0 * change_std:
+                    std[k] = math.hypot(std[k], change)
         # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
         # not the nominal sine: fit and evaluate with the measured waveforms
-        inputs = tuple(s.measured_input() for s, _ in series) if measured_inputs else ()
+        inputs = tuple(periodic_input_from_record(ht, hu, s.frequency_Hz, "zoh", source=s.source)
+                       for s, _a, _o, ht, hu in series) if measured_inputs else ()
+        # without offset the identifier applies |U sin| (a unipolar amplifier; protocols._sine)
+        unipolar = all(o == 0.0 and np.min(s.voltage_V) >= 0.0 for s, _a, o, _t, _u in series)
         sines = [SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, rest_d0),
-                          series=tuple(s for s, _ in series), source=f"{path} sine segments", inputs=inputs)]
+                          series=tuple(s[0] for s in series), source=f"{path} sine segments", inputs=inputs,
+                          d_rms_std_m=std,
+                          waveform="abs_sine" if unipolar else "sine")]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:
         return ExperimentSet(
             membrane=str(info.get("membrane_name", base.name)), geometry=geometry, mass_kg=mass,
             static=static, steps=steps, sines=sines, base_parameters=base, base_reference=str(membrane_ref),
+            sensor_noise_m=noise,
             folder=Path(path),
         )
     except ExperimentError as exc:

@@ -411,6 +411,10 @@ class SineSeries:
     voltage_V: np.ndarray
     displacement_m: np.ndarray
     source: str = "sine series"
+    #: what the voltage samples are: "linear" (samples of a continuous waveform, the default) or
+    #: "zoh" (a zero-order hold: each value applied from its sample until the next one, as the
+    #: amplifier output recorded in a bag); it decides :meth:`measured_input`
+    voltage_hold: str = "linear"
 
     def __post_init__(self):
         src = self.source
@@ -420,6 +424,8 @@ class SineSeries:
         n = _check_lengths(src, time_s=t, voltage_V=u, displacement_m=d)
         if n < 20:
             raise ExperimentError(f"{src}: {n} samples are too few for a sine record (need >= 20)")
+        if self.voltage_hold not in ("zoh", "linear"):
+            raise ExperimentError(f"{src}: voltage_hold must be 'zoh' or 'linear', got {self.voltage_hold!r}")
         _check_time(t, "time_s", src)
         _check_voltage(u, "voltage_V", src)
         _check_displacement(d, "displacement_m", src)
@@ -454,9 +460,28 @@ class SineSeries:
         uncertainty ``d0_std_m`` of the rest position (linearised)."""
         return rms_statistics(self, d0_m, noise_m, d0_std_m)[1]
 
+    def settling_m(self, d0_m: float, noise_m: float, d0_std_m: float = 0.0) -> tuple:
+        """(d_rms of the second half - first half of the whole periods, its standard uncertainty
+        from the noise): a record that has not settled (a transient still decaying) shows a
+        difference well beyond its uncertainty. (0, 0) for fewer than two periods."""
+        n = int(math.floor(float(self.time_s[-1] - self.time_s[0]) * self.frequency_Hz + 1e-9))
+        if n < 2:
+            return 0.0, 0.0
+        t = self.time_s - self.time_s[0]
+        half = (n // 2) / self.frequency_Hz
+        parts = []
+        for keep in (t <= half + 1e-9, (t >= half - 1e-9) & (t <= 2 * half + 1e-9)):
+            if np.count_nonzero(keep) < 20:
+                return 0.0, 0.0
+            piece = SineSeries(self.frequency_Hz, t[keep], self.voltage_V[keep], self.displacement_m[keep],
+                               self.source, self.voltage_hold)
+            parts.append(rms_statistics(piece, d0_m, noise_m, 0.0))
+        (a, ea), (b, eb) = parts
+        return b - a, math.hypot(ea or 0.0, eb or 0.0)
+
     def noise_m(self) -> float | None:
         """Laser noise sigma estimated from the record's third differences (see :func:`estimate_noise_m`)."""
-        return _third_difference_noise(self.displacement_m)
+        return third_difference_noise(self.displacement_m)
 
     def classify(self, noise_m: float | None = None) -> dict:
         """What the record shows, from the data alone: ``periodic`` (period T/2 of u^2),
@@ -532,34 +557,64 @@ class SineSeries:
                 "noise_m": sigma, "periods": n_periods, "harmonics": top}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
-        """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic).
+        """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic):
+        :func:`periodic_input_from_record` of this record's voltage with its ``voltage_hold``."""
+        return periodic_input_from_record(self.time_s, self.voltage_V, self.frequency_Hz, self.voltage_hold,
+                                          harmonics, samples, self.source)
 
-        The model sees u^2 only (eq. 6): u^2 over the whole periods of the record is projected
-        on harmonics 0..``harmonics`` of the excitation frequency (least squares: the period
-        average of what the membrane received, with command jitter, zero-order hold and slew
-        limiting included), then u = sqrt(u^2) is sampled at ``samples`` phases.
-        """
-        from ..solvers.inputs import SampledPeriodic
 
-        keep = self.whole_periods()
-        theta = 2.0 * np.pi * self.frequency_Hz * (self.time_s[keep] - self.time_s[0])
-        u2 = self.voltage_V[keep] ** 2
-        # only harmonics below the Nyquist frequency of the samples (above it the projection aliases)
-        fs = 1.0 / float(np.median(np.diff(self.time_s)))
-        harmonics = max(2, min(int(harmonics), int(0.45 * fs / self.frequency_Hz)))
-        k = np.arange(1, harmonics + 1)
+def periodic_input_from_record(time_s, voltage_V, frequency_Hz: float, hold: str = "linear",
+                               harmonics: int = 24, samples: int = 256, source: str = "sine record"):
+    """The voltage actually applied during a record, as one period for harmonic balance
+    (a SampledPeriodic, phase 0 at the first sample).
+
+    The model sees u^2 only (eq. 6): the harmonics 0..``harmonics`` of the excitation frequency
+    of u^2 over whole periods of the record (the period average of what the membrane received,
+    with command jitter and slew limiting included), then u = sqrt(u^2) sampled at ``samples``
+    phases. How u^2 between the samples is known depends on ``hold``: ``zoh`` (a held staircase,
+    as an amplifier fed by a DAQ or a command topic at a finite rate applies it; each value from
+    its time stamp until the next): the Fourier integrals of the piecewise-constant u^2 are
+    exact, so the hold's sinc(2 f / f_hold) attenuation of the 2f component and its half-step
+    delay are in the input; ``linear`` (samples of a continuous waveform): least-squares
+    projection of the samples.
+    """
+    from ..solvers.inputs import SampledPeriodic
+
+    t = np.asarray(time_s, float) - float(time_s[0])
+    u = np.asarray(voltage_V, float)
+    f = float(frequency_Hz)
+    dt = float(np.median(np.diff(t)))
+    # only harmonics below the Nyquist frequency of the samples (above it the projection aliases,
+    # and a staircase has its images of the hold rate there)
+    harmonics = max(2, min(int(harmonics), int(0.45 / (dt * f))))
+    k = np.arange(1, harmonics + 1)
+    if hold == "zoh":
+        n = int(math.floor((t[-1] + dt) * f + 1e-9))   # the last value holds one sample interval
+        if n < 1:
+            raise ExperimentError(f"{source}: shorter than one period at {f:g} Hz")
+        length = n / f
+        a = np.minimum(t, length)
+        b = np.minimum(np.r_[t[1:], t[-1] + dt], length)
+        kw = (2.0 * np.pi * f * k)[:, None]
+        u2 = u * u
+        coeffs = np.r_[float(u2 @ (b - a)) / length,
+                       2.0 / length * ((np.sin(kw * b) - np.sin(kw * a)) / kw) @ u2,
+                       2.0 / length * ((np.cos(kw * a) - np.cos(kw * b)) / kw) @ u2]
+        keep = t < length
+    else:
+        keep = period_weights(t, f, source)[0] > 0
+        theta = 2.0 * np.pi * f * t[keep]
         basis = np.column_stack([np.ones_like(theta), np.cos(np.outer(theta, k)), np.sin(np.outer(theta, k))])
-        coeffs, *_ = np.linalg.lstsq(basis, u2, rcond=None)
-        phase = 2.0 * np.pi * np.arange(samples) / samples
-        grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
-        u = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
-        peak = float(np.max(np.abs(self.voltage_V[keep])))
-        if np.max(u) > 1.05 * peak + 1.0:
-            raise ExperimentError(
-                f"{self.source}: the applied voltage at {self.frequency_Hz:g} Hz cannot be represented with "
-                f"{harmonics} harmonics (projection peaks at {np.max(u):.0f} V, data at {peak:.0f} V); "
-                "record more samples per period")
-        return SampledPeriodic(u, self.frequency_Hz)
+        coeffs, *_ = np.linalg.lstsq(basis, u[keep] ** 2, rcond=None)
+    phase = 2.0 * np.pi * np.arange(samples) / samples
+    grid = np.column_stack([np.ones_like(phase), np.cos(np.outer(phase, k)), np.sin(np.outer(phase, k))])
+    period = np.sqrt(np.clip(grid @ coeffs, 0.0, None))
+    peak = float(np.max(np.abs(u[keep])))
+    if np.max(period) > 1.05 * peak + 1.0:
+        raise ExperimentError(
+            f"{source}: the applied voltage at {f:g} Hz cannot be represented with {harmonics} harmonics "
+            f"(projection peaks at {np.max(period):.0f} V, data at {peak:.0f} V); record more samples per period")
+    return SampledPeriodic(period, f)
 
 
 def _interpolant_weights(t: np.ndarray, a: float, b: float) -> np.ndarray:
@@ -630,7 +685,10 @@ def rms_statistics(series: "SineSeries", d0_m: float, noise_m: float | None = No
     return rms, math.sqrt(var)
 
 
-def _third_difference_noise(d, min_samples: int = 20) -> float | None:
+def third_difference_noise(d, min_samples: int = 20) -> float | None:
+    """White-noise sigma of samples d from their third differences (variance 20 sigma^2; robust
+    spread): slow motion (ringing, creep, a sine well below the sample rate) hardly enters.
+    None for fewer than ``min_samples`` samples."""
     d = np.asarray(d, float)
     if d.size < min_samples:
         return None
@@ -1018,7 +1076,7 @@ def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
     insensitive to the response itself. A robust spread (1.4826 x median absolute deviation)
     ignores the few samples around the voltage step. None for fewer than ``min_samples`` samples.
     """
-    return _third_difference_noise(step.displacement_m, min_samples)
+    return third_difference_noise(step.displacement_m, min_samples)
 
 
 def rest_warning(step: StepData, noise_m: float | None) -> str | None:
@@ -1108,4 +1166,4 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
 
 
 __all__ += ["estimate_noise_m", "step_settling_warning", "rest_warning", "data_warnings", "period_weights",
-            "rms_statistics"]
+            "rms_statistics", "periodic_input_from_record", "third_difference_noise"]

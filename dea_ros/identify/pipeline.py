@@ -279,11 +279,30 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
                     if data_kind and model_kind and data_kind != model_kind and model_kind != "coexisting":
                         entry["note"] = (f"the data show a {data_kind} response, the model at these parameters "
                                          f"a {model_kind} one; fitted as {entry['used']}")
+                    if len(stable) > 1:
+                        # several stable responses: say which the data are on and what else the model has
+                        entry["coexisting"] = [{"branch": n, "kind": branch_kind(n), "d_rms_m": float(q.d_rms_m),
+                                                "fitted": n == name} for n, q in stable]
+                        others = ", ".join(f"{branch_kind(n)} {q.d_rms_m * 1e6:.4g} um" for n, q in stable
+                                           if n != name)
+                        entry["note"] = (f"coexisting stable responses in the model: {branch_kind(name)} "
+                                         f"{pt.d_rms_m * 1e6:.4g} um (fitted: the record, {meas * 1e6:.4g} um"
+                                         + (f", {data_kind}" if data_kind else "") + f", is on it) and {others}"
+                                         " (which one a measurement sees depends on the history)")
                 else:
                     entry["used"] = "left out"
                     entry["reason"] = reason
                 out.append(entry)
     return out
+
+
+#: a fitted record whose model d_rms is further than this (relative) and 5 sigma from the data is reported
+DISAGREEMENT_FRACTION = 0.02
+
+
+def branch_kind(name: str) -> str:
+    """The response kind of a continuation branch: the primary T/2 orbit or a period-doubled one."""
+    return "T/2 orbit" if name == PRIMARY else "period-doubled (T)"
 
 
 def _points_from(classification: list, experiments: ExperimentSet) -> list:
@@ -481,6 +500,21 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
         if sine.d_rms_std_m is not None and np.any(ok):
             z = err[ok] / (sine.d_rms_std_m[ok] * 1e6)
             entry["normalised_rms_error"] = float(np.sqrt(np.mean(z**2)))
+        # records the model does not reproduce: beyond the noise and by more than 2 % (a fitted
+        # record is not a reproduced one)
+        apart = []
+        for k in np.nonzero(ok)[0]:
+            rel = err[k] / (sine.d_rms_m[k] * 1e6)
+            zk = err[k] / (sine.d_rms_std_m[k] * 1e6) if sine.d_rms_std_m is not None else None
+            if abs(rel) > DISAGREEMENT_FRACTION and (zk is None or abs(zk) > 5.0):
+                apart.append(f"{f[k]:g} Hz (data {sine.d_rms_m[k] * 1e6:.4g} um, model "
+                             f"{model_at_data[k] * 1e6:.4g} um, {100 * rel:+.1f} %"
+                             + (f", {zk:+.0f} sigma" if zk is not None else "") + ")")
+        if apart:
+            entry["not_reproduced"] = apart
+            warnings.append(f"{sine.source}: the fitted model does not reproduce the record at " + "; ".join(apart)
+                            + ": a model-data disagreement (an excitation the model does not see, a record not "
+                            "settled, or a model error), not a fit within the noise")
         left = f[[u == "left out" for u in used]]
         if left.size and own_classification:
             reasons = {c["frequency_Hz"]: c.get("reason", "") for c in (classification or [])
@@ -507,9 +541,16 @@ def evaluate(params: MembraneParameters, experiments: ExperimentSet, n_harmonics
                 continue
             e = (model_d - ser.displacement_m) * 1e6
             rms_e = float(np.sqrt(np.mean(e**2)))
+            how = "driven by the recorded voltage" if sine.inputs else "aligned on the phase of u^2"
             series_out.append({"series": ser, "model_m": model_d, "rms_error_um": rms_e, "phase_rad": phase,
-                               "kind": c["used"]})
+                               "kind": c["used"], "how": how})
+            entry["series_model"] = how
             entry.setdefault("series_rms_error_um", {})[f"{ser.frequency_Hz:g} Hz"] = rms_e
+            sigma = noise if noise is not None else ser.noise_m()
+            if sigma is not None and rms_e > 3.0 * sigma * 1e6:
+                warnings.append(f"{ser.source}: the model does not reproduce the sampled record: RMS error "
+                                f"{rms_e:.3g} um against {sigma * 1e6:.2g} um laser noise (a transient that has not "
+                                "died out, an excitation the model does not see, or a model error)")
         freq_metrics.append(entry)
         curves["sines"].append({"sine": sine, "model_at_data_m": model_at_data, "used": used,
                                 "dense": dense_curves, "series": series_out})

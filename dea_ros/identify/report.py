@@ -223,8 +223,9 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
 
 
 def plot_sine_series(result: IdentificationResult, path: str | Path) -> Path | None:
-    """Sampled sine records vs the model, aligned on the phase of u^2 (the recorded voltage's 2f
-    component: right for U sin and |U sin| alike), with the voltage below."""
+    """Sampled sine records vs the model, driven by the recorded voltage when the records carry it
+    (else aligned on the phase of u^2, the recorded voltage's 2f component: right for U sin and
+    |U sin| alike), with the voltage as applied (a held staircase drawn as one)."""
     items = [s for item in result.curves.get("sines", []) for s in item["series"]]
     if not items:
         return None
@@ -236,15 +237,16 @@ def plot_sine_series(result: IdentificationResult, path: str | Path) -> Path | N
         if item.get("model_m") is not None:
             ax.plot(ser.time_s[show], item["model_m"][show] * 1e3, "-", color="C0",
                     label=f"model ({item.get('kind')})")
-            ax.set_title(f"{ser.frequency_Hz:g} Hz: RMS error {item['rms_error_um']:.3g} um (model aligned on the "
-                         "phase of u^2)")
+            ax.set_title(f"{ser.frequency_Hz:g} Hz: RMS error {item['rms_error_um']:.3g} um (model "
+                         f"{item.get('how', 'aligned on the phase of u^2')})")
         else:
             ax.set_title(f"{ser.frequency_Hz:g} Hz: no periodic model response ({item.get('note', '')})")
         ax.set_ylabel("d (mm)")
         ax.grid(alpha=0.3)
         ax2 = ax.twinx()
-        ax2.plot(ser.time_s[show], ser.voltage_V[show] / 1e3, "-", color="C1", lw=0.5, alpha=0.5)
-        ax2.set_ylabel("u (kV)", color="C1")
+        ax2.plot(ser.time_s[show], ser.voltage_V[show] / 1e3, "-", color="C1", lw=0.5, alpha=0.5,
+                 drawstyle="steps-post" if ser.voltage_hold == "zoh" else "default")
+        ax2.set_ylabel("u (kV, as applied)" if ser.voltage_hold == "zoh" else "u (kV)", color="C1")
         ax.legend(fontsize=8, loc="upper right")
     axes[-1, 0].set_xlabel("time (s)")
     fig.savefig(path, dpi=110)
@@ -281,6 +283,21 @@ def _ci_cells(ci, scale):
     return f"[{_fmt(lo * scale)}, {_fmt(hi * scale)}]", f"{100 * rel:.2g} %"
 
 
+def applied_input_text(sine) -> str:
+    """What the fit and the model curves were driven with when the records carry the applied voltage."""
+    held = [x for x in sine.series if x.voltage_hold == "zoh"]
+    steps = []
+    for x in held:
+        changes = np.nonzero(np.diff(x.voltage_V))[0]
+        if changes.size > 2:
+            steps.append(float(np.median(np.diff(x.time_s[changes + 1]))))
+    hold = (f" as applied: a staircase, each value held {1e3 * np.median(steps):.3g} ms (zero-order hold at "
+            f"{1.0 / np.median(steps):.4g} Hz; the 2f component of u^2 is sinc(2 f / f_hold) smaller and half a step "
+            "later than the ideal sine's)") if steps else ""
+    return ("Applied voltage: the fit, the model d_rms and the model curves use each record's recorded voltage"
+            + hold + ", not the ideal sine.")
+
+
 WAVEFORM_TEXT = {"sine": "u = U sin(2 pi f t)", "abs_sine": "u = |U sin(2 pi f t)| (unipolar amplifier)"}
 
 
@@ -297,6 +314,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
         out.append(f"Sine excitation ({Path(sine.source).name}): {WAVEFORM_TEXT.get(sine.waveform, sine.waveform)}, "
                    "U = amplitude_V; the model sees u^2 only (eq. 6), the same for both waveforms. d_rms: eq. 21 "
                    "over whole periods around the rest position d0.")
+        if sine.inputs:
+            out.append(applied_input_text(sine))
     out.append("")
     out.append(f"Methods: static fit **{result.options.get('static_method')}**, dynamic fit "
                f"**{result.options.get('dynamic_method')}** (weights {result.options.get('weights')}), frequency "
@@ -396,8 +415,13 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
             if sine.d_rms_std_m is not None and np.isfinite(model):
                 z = f"{(model - c['measured_rms_m']) / sine.d_rms_std_m[c['index']]:+.2f}"
             used = c["used"] if c["used"] != "left out" else f"left out: {c.get('reason', '')}"
+            model_kind = c.get("model_kind") or "-"
+            if c.get("coexisting"):
+                model_kind = "coexisting: " + "; ".join(
+                    f"{b['kind']} {b['d_rms_m'] * 1e6:.4g} um" + (" (fitted)" if b["fitted"] else "")
+                    for b in c["coexisting"])
             out.append(f"| {c['frequency_Hz']:g} | {c['measured_rms_m'] * 1e6:.4g} | {c.get('data_kind') or '-'} | "
-                       f"{c.get('model_kind') or '-'} | {used} | "
+                       f"{model_kind} | {used} | "
                        f"{_fmt(model * 1e6) if np.isfinite(model) else '-'} | {z} |")
         _ = ev_fr
         out.append("")
@@ -451,7 +475,8 @@ def report_markdown(result: IdentificationResult, figures: dict, timings_extra: 
                        + ".")
             out.append("")
         for k, v in entry.get("series_rms_error_um", {}).items():
-            out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um (model aligned on the phase of u^2)")
+            out.append(f"- sampled record at {k}: RMS error {_fmt(v)} um (model "
+                       f"{entry.get('series_model', 'aligned on the phase of u^2')})")
         if entry.get("series_rms_error_um"):
             out.append("")
     if result.uncertainty:

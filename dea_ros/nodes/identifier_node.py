@@ -16,7 +16,11 @@
 
 Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. Every tick ends with a
 ``~/tick_done`` (std_msgs/Header, stamp = the tick's time): in simulated time the mock rig waits
-for it before advancing (lockstep), so the commands reach the amplifier on time. ``~/abort``
+for it before advancing (lockstep), so the commands reach the amplifier on time. With
+``command_trigger: applied_voltage`` (the demo) a tick is the amplifier's applied-voltage message
+of its update t_k, and the command is for its next update t_k + 1/``command_rate_hz``: with
+amplifier_node's ``~/command_received`` in the mock rig's ``lockstep_topics`` every command is
+applied exactly one update after it was computed (a clean zero-order hold, no jitter). ``~/abort``
 (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
 
@@ -35,7 +39,9 @@ import traceback
 from datetime import datetime
 from pathlib import Path
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.time import Time
 from rclpy.qos import HistoryPolicy, QoSProfile
 from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
@@ -98,6 +104,14 @@ class IdentifierNode(Node):
         self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends")
         self.exit_when_done = declare_bool(self, "exit_when_done", False, "stop the node when done (demo)")
         self.command_rate_hz = declare_float(self, "command_rate_hz", 500.0, "voltage_cmd rate, Hz", 10.0, 5000.0)
+        self.command_trigger = declare_str(
+            self, "command_trigger", "timer",
+            "timer (a command every 1/command_rate_hz) or applied_voltage (simulated lockstep: one command per "
+            "applied-voltage message of the amplifier, for its next update; command_rate_hz = its update rate)")
+        if self.command_trigger not in ("timer", "applied_voltage"):
+            raise SystemExit(f"identifier_node: parameter 'command_trigger': timer or applied_voltage, "
+                             f"got {self.command_trigger!r}")
+        self.last_trigger_ns = -1
         self.wait_for_rig_s = declare_float(self, "wait_for_rig_s", 30.0,
                                             "wait this long for the amplifier and the sensor, s", 0.0, 600.0)
         self.min_free_mb = declare_float(self, "min_free_mb", 100.0, "free disk needed before starting, MB", 0.0, 1e6)
@@ -157,7 +171,15 @@ class IdentifierNode(Node):
                     pass
             self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
             return
-        self.create_timer(1.0 / self.command_rate_hz, self.on_tick)
+        if self.command_trigger == "timer":
+            self.create_timer(1.0 / self.command_rate_hz, self.on_tick)
+        else:
+            # a command computed at a clock tick races the amplifier's update of the same tick (it is
+            # applied at once or one update later: a jittered staircase). After the amplifier's output
+            # for t_k is seen, the command is for its update at t_k + 1/rate, always; the mock rig's
+            # lockstep (amplifier_node/command_received) lets the clock advance only once it arrived.
+            self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_applied_voltage, SENSOR_QOS)
+            self.create_timer(0.1, self.on_wait_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.create_timer(0.5, self.publish_status)
         self.get_logger().info(
             f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
@@ -281,19 +303,33 @@ class IdentifierNode(Node):
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def on_tick(self) -> None:
+    def on_applied_voltage(self, msg: BatteryState) -> None:
+        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
+            self.last_trigger_ns = stamp_ns
+            self.on_tick(stamp_ns)
+
+    def on_wait_tick(self) -> None:
+        """``command_trigger: applied_voltage``: the wait for the rig times out without amplifier output."""
+        if self.state in ("starting", "waiting") and self.now_ns() > 0:
+            self.on_tick()
+
+    def on_tick(self, now_ns: int | None = None) -> None:
+        """One command. ``now_ns``: the tick's time (default: the node's clock)."""
+        now_ns = self.now_ns() if now_ns is None else int(now_ns)
         if self.state == "starting":
             self.state = "waiting"
             self.wait_started = time.monotonic()
         if self.state == "waiting":
             self.cmd_pub.publish(Float64(data=0.0))
-            self.publish_ack()
+            self.publish_ack(now_ns)
             if all(self.rig_seen.values()):
                 self.state = "running"
                 for sub in self.ready_subs:  # only needed to start: halve the callbacks
                     self.destroy_subscription(sub)
                 self.ready_subs = []
-                self.t0_ns = self.now_ns()
+                self.t0_ns = now_ns
                 try:
                     self.record_experiment_metadata(0, aborted=False)
                 except BagError as exc:
@@ -308,7 +344,7 @@ class IdentifierNode(Node):
             return
         if self.state != "running":
             return
-        t = (self.now_ns() - self.t0_ns) * 1e-9
+        t = (now_ns - self.t0_ns) * 1e-9
         k = self.segment_index if self.segment_index >= 0 else 0
         while k < len(self.segments) and t >= self.segments[k].end_s:
             k += 1
@@ -326,7 +362,7 @@ class IdentifierNode(Node):
             event = json.dumps({"event": "segment_start", **seg.to_dict()})
             self.segment_pub.publish(String(data=event))
             try:
-                self.bag.write(self.segment_topic, {"data": event}, self.now_ns())
+                self.bag.write(self.segment_topic, {"data": event}, now_ns)
             except BagError as exc:
                 self.recording_failed(exc)
                 return
@@ -336,12 +372,13 @@ class IdentifierNode(Node):
             )
         # one command period ahead: the amplifier applies it at its next update, on time
         self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + 1.0 / self.command_rate_hz))))
-        self.publish_ack()
+        self.publish_ack(now_ns)
 
-    def publish_ack(self) -> None:
-        """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = now)."""
+    def publish_ack(self, stamp_ns: int | None = None) -> None:
+        """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = the
+        tick's time, at least now)."""
         ack = Header()
-        ack.stamp = self.get_clock().now().to_msg()
+        ack.stamp = Time(nanoseconds=max(self.now_ns(), int(stamp_ns or 0)), clock_type=ClockType.ROS_TIME).to_msg()
         ack.frame_id = self.get_name()
         self.ack_pub.publish(ack)
 
