@@ -32,6 +32,7 @@ class FakeRig(Node):
         super().__init__("fake_rig", context=context)
         self.u = 0.0
         self.commands = []
+        self.ticks = 0
         self.create_subscription(Float64, "voltage_cmd", self.on_cmd, COMMAND_QOS)
         self.v_pub = self.create_publisher(BatteryState, "voltage", SENSOR_QOS)
         self.d_pub = self.create_publisher(Range, "displacement", SENSOR_QOS)
@@ -42,6 +43,7 @@ class FakeRig(Node):
         self.commands.append(msg.data)
 
     def tick(self):
+        self.ticks += 1
         t = self.get_clock().now().nanoseconds
         self.v_pub.publish(make_voltage_state(self.u, t, True))
         self.d_pub.publish(make_range(7e-4 + 1e-7 * self.u, t, "laser"))
@@ -79,6 +81,8 @@ def test_abort_keeps_the_recording_and_commands_zero(ros_context, spin_until, tm
     assert spin_until(ex, lambda: node.state == "running", timeout_s=10.0)
     # the staircase is under way: the 2 kV level reaches the rig
     assert spin_until(ex, lambda: rig.commands and max(rig.commands) > 1000.0, timeout_s=10.0)
+    # enough recorded to count (in wall time: a loaded machine runs the timers slower)
+    assert spin_until(ex, lambda: rig.ticks > 700 and len(rig.commands) > 150, timeout_s=60.0)
     fut = abort.call_async(Trigger.Request())
     assert spin_until(ex, fut.done)
     assert fut.result().success
