@@ -336,6 +336,8 @@ BAND_COLOURS = {"period-doubled": "tab:orange", "quasi-periodic": "tab:red", "co
 
 def plot_sweep(result, name: str, args) -> None:
     """Realised response (markers), branches (lines: solid stable, dotted unstable), shaded bands."""
+    from .solvers.continuation import stability_segments
+
     plt = matplotlib_pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))
     for b in result.bands:
@@ -345,10 +347,9 @@ def plot_sweep(result, name: str, args) -> None:
     styles = {"T/2": "tab:blue", "T": "tab:orange"}
     for br in result.branches:
         col = styles.get(br.name, "tab:green")
-        f, d, st = br.curve_frequency_Hz, br.curve_d_rms_m * 1e6, br.curve_stable
-        ax.plot(f, np.where(st, d, np.nan), "-", color=col, lw=1.2,
-                label=f"{br.name} branch ({br.kind}), stable")
-        ax.plot(f, np.where(~st, d, np.nan), ":", color=col, lw=1.0, label=f"{br.name} branch, unstable")
+        (fs, ds), (fu, du) = stability_segments(br, result.bifurcations)
+        ax.plot(fs, ds * 1e6, "-", color=col, lw=1.2, label=f"{br.name} branch ({br.kind}), stable")
+        ax.plot(fu, du * 1e6, ":", color=col, lw=1.0, label=f"{br.name} branch, unstable")
     if not result.branches:  # independent sweeps: the solved points only
         f = result.frequencies_Hz
         ax.plot(f, result.d_rms_m * 1e6, ".-", color="tab:blue", label="periodic solution")

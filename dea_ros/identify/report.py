@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .metrics import linear_combination_ci
+from ..solvers.continuation import stability_segments
 from .pipeline import IdentificationResult
 from .static_fit import stress_combinations
 
@@ -166,10 +167,10 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
         for amp, sweep in item["dense"]:
             for br in sweep.branches:
                 col = "C0" if br.kind == "periodic" else "C1"
-                d = br.curve_d_rms_m * 1e3
-                ax.plot(br.curve_frequency_Hz, np.where(br.curve_stable, d, np.nan), "-", color=col, lw=1.0,
-                        label=f"model {br.name} branch ({br.kind}), {amp / 1e3:g} kV")
-                ax.plot(br.curve_frequency_Hz, np.where(~br.curve_stable, d, np.nan), ":", color=col, lw=0.8)
+                (fs, ds), (fu, du) = stability_segments(br, sweep.bifurcations)
+                ax.plot(fs, ds * 1e3, "-", color=col, lw=1.0, label=f"model {br.name} branch ({br.kind}), "
+                        f"{amp / 1e3:g} kV")
+                ax.plot(fu, du * 1e3, ":", color=col, lw=0.8)
             qp = [r for r in sweep.responses if r.branch == "integration"]
             if qp:
                 ax.errorbar([r.frequency_Hz for r in qp], [r.d_rms_m * 1e3 for r in qp],

@@ -65,6 +65,7 @@ from .steady_state import SteadyStateError, solve_periodic
 __all__ = [
     "SweepPoint", "Fold", "Bifurcation", "Response", "Band", "Branch", "SweepResult", "frequency_sweep",
     "ContinuationError", "sweep_independent", "KINDS", "period_doubled_solution", "PRIMARY", "END_TOL",
+    "stability_segments",
 ]
 
 #: Kinds of realised response, in the order of the band summary.
@@ -791,6 +792,48 @@ def _odd_part(full: _Tracer, z, podd):
 
 
 # ----------------------------------------------------------------------------- sweep
+def stability_segments(branch: "Branch", bifurcations) -> tuple:
+    """((f, d_rms) stable, (f, d_rms) unstable) polylines of a branch's curve, NaN between pieces, split
+    where the stability changes at the branch's located bifurcation (fold, torus, period doubling)
+    rather than half-way: a branch followed in long steps (a flat response) may have a single stable
+    point between unstable ones, which masking the curve would not draw at all."""
+    f = np.asarray(branch.curve_frequency_Hz, float)
+    d = np.asarray(branch.curve_d_rms_m, float)
+    st = np.asarray(branch.curve_stable, bool)
+    own = [b for b in bifurcations if b.branch == branch.name]
+    lines = {True: ([], []), False: ([], [])}
+
+    def add(stable, f0, d0, f1, d1):
+        xs, ys = lines[stable]
+        if not xs or xs[-1] != f0 or ys[-1] != d0:
+            if xs:
+                xs.append(np.nan)
+                ys.append(np.nan)
+            xs.append(f0)
+            ys.append(d0)
+        xs.append(f1)
+        ys.append(d1)
+
+    for i in range(f.size - 1):
+        if st[i] == st[i + 1]:
+            add(bool(st[i]), f[i], d[i], f[i + 1], d[i + 1])
+            continue
+        lo, hi = min(f[i], f[i + 1]), max(f[i], f[i + 1])
+        inside = [b for b in own if lo <= b.frequency_Hz <= hi]
+        if inside:
+            mid = 0.5 * (lo + hi)
+            b = min(inside, key=lambda x: abs(x.frequency_Hz - mid))
+            fb, db = b.frequency_Hz, b.d_rms_m
+        else:
+            fb, db = 0.5 * (f[i] + f[i + 1]), 0.5 * (d[i] + d[i + 1])
+        add(bool(st[i]), f[i], d[i], fb, db)
+        add(bool(st[i + 1]), fb, db, f[i + 1], d[i + 1])
+    if f.size == 1:
+        lines[bool(st[0])][0].append(f[0])
+        lines[bool(st[0])][1].append(d[0])
+    return tuple((np.array(lines[k][0], float), np.array(lines[k][1], float)) for k in (True, False))
+
+
 def frequency_sweep(
     params: MembraneParameters,
     periodic_input: PeriodicInput,
