@@ -157,6 +157,19 @@ def cmd_synth(args) -> int:
     return 0
 
 
+def _checked_options(args):
+    """Check the options of ``identify`` shared by one and many inputs (raises _UsageError naming the
+    option); returns the fit frequencies (None, "all" or a list of Hz)."""
+    _check_out_dir(args.out)
+    _check_harmonics(args.harmonics)
+    _check_samples(args)
+    if args.membrane:
+        _check_membrane(args.membrane)
+    if not args.fit_frequencies:
+        return None
+    return "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies", args.fit_frequencies)
+
+
 def cmd_identify(args) -> int:
     """``dea-ros identify``: fit all parameters of an experiment folder, write params and report."""
     from ..model.parameters import ParameterError
@@ -167,20 +180,12 @@ def cmd_identify(args) -> int:
     stream = sys.stderr
     progress = None if args.quiet else _progress_printer(stream)
     t0 = time.perf_counter()
-    fit_freqs = None
     if isinstance(args.data, list):
         if len(args.data) > 1:
             return cmd_identify_many(args)
         args.data = args.data[0]
     try:
-        _check_out_dir(args.out)
-        _check_harmonics(args.harmonics)
-        _check_samples(args)
-        if args.membrane:
-            _check_membrane(args.membrane)
-        if args.fit_frequencies:
-            fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
-                                                                                  args.fit_frequencies)
+        fit_freqs = _checked_options(args)
     except _UsageError as exc:
         return _error("identify", exc)
     data_path = Path(args.data)
@@ -268,16 +273,8 @@ def cmd_identify_many(args) -> int:
     from ..study.engine import EngineError
     from .many import identify_many
 
-    fit_freqs = None
     try:
-        _check_out_dir(args.out)
-        _check_harmonics(args.harmonics)
-        _check_samples(args)
-        if args.membrane:
-            _check_membrane(args.membrane)
-        if args.fit_frequencies:
-            fit_freqs = "all" if args.fit_frequencies == "all" else _parse_floats("--fit-frequencies",
-                                                                                  args.fit_frequencies)
+        fit_freqs = _checked_options(args)
         for d in args.data:   # before any engine starts: each input must look like one
             _check_input(d)
         if args.workers is not None and args.workers < 1:

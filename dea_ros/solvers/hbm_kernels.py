@@ -543,6 +543,20 @@ def _jac9(constants, d, e, v, u2, rt):
 
 
 @_jit
+def _state_at_phase(c0, ca, cs, nh, th):
+    """(d, e, v) of the truncated Fourier series (mean c0, cos/sin coefficients ca, cs up to nh) at phase th."""
+    c1, s1 = math.cos(th), math.sin(th)
+    cn, sn = c1, s1
+    d, e, v = c0[0], c0[1], c0[2]
+    for n in range(1, nh + 1):
+        d += ca[0, n] * cn + cs[0, n] * sn
+        e += ca[1, n] * cn + cs[1, n] * sn
+        v += ca[2, n] * cn + cs[2, n] * sn
+        cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+    return d, e, v
+
+
+@_jit
 def monodromy(state, phases, u2, h, constants, scale, order):
     """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
 
@@ -579,25 +593,9 @@ def monodromy(state, phases, u2, h, constants, scale, order):
     total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     for s in range(steps):
         # the state at the two Gauss points (3x3 matrices below are 9-tuples: kept in registers)
-        th = phases[s]
-        c1, s1 = math.cos(th), math.sin(th)
-        cn, sn = c1, s1
-        d, e, v = c0[0], c0[1], c0[2]
-        for n in range(1, nh + 1):
-            d += ca[0, n] * cn + cs[0, n] * sn
-            e += ca[1, n] * cn + cs[1, n] * sn
-            v += ca[2, n] * cn + cs[2, n] * sn
-            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        d, e, v = _state_at_phase(c0, ca, cs, nh, phases[s])
         a1 = _jac9(constants, d, e, v, u2[s], rt)
-        th = phases[s + steps]
-        c1, s1 = math.cos(th), math.sin(th)
-        cn, sn = c1, s1
-        d, e, v = c0[0], c0[1], c0[2]
-        for n in range(1, nh + 1):
-            d += ca[0, n] * cn + cs[0, n] * sn
-            e += ca[1, n] * cn + cs[1, n] * sn
-            v += ca[2, n] * cn + cs[2, n] * sn
-            cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
+        d, e, v = _state_at_phase(c0, ca, cs, nh, phases[s + steps])
         a2 = _jac9(constants, d, e, v, u2[s + steps], rt)
         om = _lin9(0.5, _lin9(1.0, a1, 1.0, a2), c3, _lin9(1.0, _mul9(a2, a1), -1.0, _mul9(a1, a2)))
         total = _mul9(_expm9(om, coef), total)     # later steps multiply from the left
