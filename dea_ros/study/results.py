@@ -19,15 +19,27 @@ import numpy as np
 from .evaluate import COLUMNS
 
 __all__ = ["write_chunk", "read_chunk", "chunk_path", "write_results", "read_results", "parquet_available",
-           "column_types"]
+           "parquet_problem", "column_types"]
+
+
+def parquet_problem() -> str | None:
+    """Why Parquet cannot be written here (None: it can). pyarrow must import *and* take numpy arrays:
+    a pyarrow built for NumPy 2 imports under NumPy 1.x (Jazzy's apt numpy 1.26) and fails only at its
+    first array ("pyarrow requires NumPy 2.0 or newer")."""
+    try:
+        import numpy as np
+        import pyarrow as pa
+        import pyarrow.parquet  # noqa: F401
+
+        pa.array(np.zeros(2))
+    except Exception as exc:  # noqa: BLE001 - any failure means: use CSV
+        return f"{type(exc).__name__}: {exc}"
+    return None
 
 
 def parquet_available() -> bool:
-    try:
-        import pyarrow.parquet  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Parquet results can be written (:func:`parquet_problem` found nothing)."""
+    return parquet_problem() is None
 
 
 def column_types(names) -> dict:

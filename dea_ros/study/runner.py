@@ -18,7 +18,7 @@ import numpy as np
 from ..model.parameters import MembraneParameters, load_parameters
 from .engine import Engine, Progress
 from .evaluate import evaluate_chunk, result_columns
-from .results import parquet_available, read_chunk, write_chunk, write_results
+from .results import parquet_available, parquet_problem, read_chunk, write_chunk, write_results
 from .spec import SpecError, StudySpec
 
 __all__ = ["run_study", "study_chunks", "StudyInterrupted"]
@@ -83,8 +83,9 @@ def run_study(spec: StudySpec, out_dir, engine: Engine | None = None, progress: 
     if fmt == "auto":
         fmt = "parquet" if parquet_available() else "csv"
     elif fmt == "parquet" and not parquet_available():
-        raise SpecError("output.format parquet needs pyarrow: pip install pyarrow (extra: dea_ros[study]; apt: "
-                        "python3-pyarrow where packaged), or use format csv")
+        raise SpecError(f"output.format parquet needs a working pyarrow ({parquet_problem()}): pip install a "
+                        "pyarrow that matches this numpy (extra: dea_ros[study]; apt: python3-pyarrow where "
+                        "packaged), or use format csv")
     fingerprint = _fingerprint(spec, base)
     previous = _check_folder(out, fingerprint, restart)
     out.mkdir(parents=True, exist_ok=True)
