@@ -18,7 +18,7 @@ import numpy as np
 from ..model.parameters import MembraneParameters, load_parameters
 from .engine import Engine, Progress
 from .evaluate import evaluate_chunk, result_columns
-from .results import parquet_available, parquet_problem, read_chunk, write_chunk, write_results
+from .results import parquet_problem, read_chunk, write_chunk, write_results
 from .spec import SpecError, StudySpec
 
 __all__ = ["run_study", "study_chunks", "StudyInterrupted"]
@@ -80,10 +80,11 @@ def run_study(spec: StudySpec, out_dir, engine: Engine | None = None, progress: 
         except OSError as exc:
             raise SpecError(f"base: {spec.base}: {exc}") from None
     fmt = spec.output_format
+    problem = parquet_problem() if fmt in ("auto", "parquet") else None   # imports pyarrow: once
     if fmt == "auto":
-        fmt = "parquet" if parquet_available() else "csv"
-    elif fmt == "parquet" and not parquet_available():
-        raise SpecError(f"output.format parquet needs a working pyarrow ({parquet_problem()}): pip install a "
+        fmt = "csv" if problem else "parquet"
+    elif fmt == "parquet" and problem:
+        raise SpecError(f"output.format parquet needs a working pyarrow ({problem}): pip install a "
                         "pyarrow that matches this numpy (extra: dea_ros[study]; apt: python3-pyarrow where "
                         "packaged), or use format csv")
     fingerprint = _fingerprint(spec, base)
