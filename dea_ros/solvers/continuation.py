@@ -373,14 +373,11 @@ class _Tracer:
         return self.wz * float(a_z @ b_z) + a_p * b_p
 
     def _bordered(self, z, p, tz, tp):
+        """(R, dense bordered matrix) of the numpy path."""
         omega = math.exp(p)
         sy = self.system
-        if hbm_kernels.enabled():
-            r, jac, dr = hbm_kernels.collocation_residual_jacobian(np.asarray(z, dtype=float), omega, self.u2,
-                                                                   sy.constants, sy.scale, sy.rate_ref, sy.d_theta)
-        else:
-            r, jac = sy.residual_and_jacobian(z, omega, self.u2)
-            dr = sy.d_residual_d_log_omega(z, omega)
+        r, jac = sy.residual_and_jacobian(z, omega, self.u2)
+        dr = sy.d_residual_d_log_omega(z, omega)
         big = np.empty((self.n + 1, self.n + 1))
         big[:self.n, :self.n] = jac
         big[:self.n, self.n] = dr
@@ -389,32 +386,40 @@ class _Tracer:
         return r, big
 
     def tangent(self, z, p, prev_tz, prev_tp):
+        if hbm_kernels.enabled():  # the same bordered system, solved by the structured reduction
+            return self._compiled_tangent(z, p, prev_tz, prev_tp)
         _r, big = self._bordered(z, p, prev_tz, prev_tp)
         return self._unit_tangent(big)
+
+    def _compiled_tangent(self, z, p, prev_tz, prev_tp):
+        sy = self.system
+        t, ok = hbm_kernels.bordered_tangent(np.asarray(z, dtype=float), float(p), np.asarray(prev_tz, dtype=float),
+                                             float(prev_tp), self.wz, self.u2, sy.constants, sy.scale, sy.rate_ref,
+                                             sy.d_theta)
+        if not ok:
+            raise np.linalg.LinAlgError("Singular matrix")
+        return self._normalised(t)
+
+    def _normalised(self, t):
+        tz, tp = t[:self.n], t[self.n]
+        norm = math.sqrt(self.inner(tz, tp, tz, tp))
+        return tz / norm, tp / norm
 
     def _unit_tangent(self, big):
         """The unit tangent: solution of the bordered system with right-hand side e_n, normalised."""
         rhs = np.zeros(self.n + 1)
         rhs[-1] = 1.0
-        if hbm_kernels.enabled():
-            t, ok = hbm_kernels.solve_dense(big, rhs)
-            if not ok:
-                raise np.linalg.LinAlgError("Singular matrix")
-        else:
-            t = np.linalg.solve(big, rhs)
-        tz, tp = t[:self.n], t[self.n]
-        norm = math.sqrt(self.inner(tz, tp, tz, tp))
-        return tz / norm, tp / norm
+        return self._normalised(np.linalg.solve(big, rhs))
 
     def correct(self, z_pred, p_pred, tz, tp, max_iter: int = 12):
         if hbm_kernels.enabled():  # the same corrector, compiled
             sy = self.system
-            ok, zc, pc, it, big = hbm_kernels.bordered_corrector(
+            ok, zc, pc, it, z_last, p_last = hbm_kernels.bordered_corrector(
                 np.asarray(z_pred, dtype=float), float(p_pred), np.asarray(tz, dtype=float), float(tp), self.wz,
                 self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, float(self.tol), int(max_iter))
             if not ok:
                 return None
-            self.last_bordered = big
+            self.last_bordered = (z_last, p_last, tz, tp)   # where the last matrix was built
             return zc, pc, it
         zc, pc = z_pred.copy(), p_pred
         for it in range(1, max_iter + 1):
@@ -436,6 +441,8 @@ class _Tracer:
 
     def tangent_from_last(self):
         """Unit tangent from the bordered matrix of the last converged corrector (no new Jacobian)."""
+        if isinstance(self.last_bordered, tuple):
+            return self._compiled_tangent(*self.last_bordered)
         return self._unit_tangent(self.last_bordered)
 
     def solve_at(self, p_target, z_seed):
@@ -556,18 +563,20 @@ def _event_kind(mu) -> str:
     return "period-doubling" if c.real < 0 else "branch point"
 
 
-def _rms_and_gradient(tracer: _Tracer, z, d0):
-    """d_rms (eq. 21) and its gradient w.r.t. the scaled unknowns z (d0 None: around the mean)."""
+def _rms_and_deviation(tracer: _Tracer, z, d0):
+    """(d_rms (eq. 21), d - d0 at the collocation points) of the scaled unknowns z."""
     m = tracer.m
-    sc = tracer.setup.scale[0]
-    x0 = z[:m] * sc
-    ref = float(np.mean(x0)) if d0 is None else d0
+    x0 = z[:m] * tracer.setup.scale[0]
+    ref = float(x0.sum()) / m if d0 is None else d0
     dev = x0 - ref
-    rms = float(np.sqrt(np.mean(dev * dev)))
-    grad = np.zeros(tracer.n)
-    if rms > 0:
-        grad[:m] = sc * dev / (m * rms)
-    return rms, grad
+    return math.sqrt(float(dev @ dev) / m), dev
+
+
+def _rms_slope(tracer: _Tracer, z, tz, d0) -> float:
+    """d(d_rms)/ds along the tangent tz (the gradient of d_rms w.r.t. the scaled z, dotted with tz)."""
+    m = tracer.m
+    rms, dev = _rms_and_deviation(tracer, z, d0)
+    return tracer.setup.scale[0] * float(dev @ tz[:m]) / (m * rms) if rms > 0 else 0.0
 
 
 def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_ends: bool = False) -> dict:
@@ -619,7 +628,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         folds = [f for f in folds if min(abs(f["p"] - e) for e in ends) > END_TOL]
     # ---- stability changes, located by bisection along the branch
     events = []
-    d_of = lambda z: _rms_and_gradient(tracer, z, d0)[0]  # noqa: E731
+    d_of = lambda z: _rms_and_deviation(tracer, z, d0)[0]  # noqa: E731
     if stability:
         for i in range(len(stations) - 1):
             if counts[i] == counts[i + 1]:
@@ -655,7 +664,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     # ---- local maxima of d_rms along the arclength: d(d_rms)/ds = grad . t changes sign
 
     def slope(z, tz):
-        return float(_rms_and_gradient(tracer, z, d0)[1] @ tz)
+        return _rms_slope(tracer, z, tz, d0)
 
     maxima = []
     slopes = [slope(zs[k], tr["tz"][k]) for k in range(nsteps)]
@@ -742,9 +751,9 @@ def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, 
             sol.multipliers = an["mu_grid"][j]
         ref = sol.mean_displacement_m if d0 is None else d0
         points.append(_sweep_point(sol, ref, it, t_points, seg, stability, name))
-    folds = [Fold(tracer.excitation_Hz(f["p"]), _rms_and_gradient(tracer, f["z"], d0)[0], f["direction"], name)
+    folds = [Fold(tracer.excitation_Hz(f["p"]), _rms_and_deviation(tracer, f["z"], d0)[0], f["direction"], name)
              for f in an["folds"]]
-    bifs = [Bifurcation(e["kind"], tracer.excitation_Hz(e["p"]), _rms_and_gradient(tracer, e["z"], d0)[0],
+    bifs = [Bifurcation(e["kind"], tracer.excitation_Hz(e["p"]), _rms_and_deviation(tracer, e["z"], d0)[0],
                         name, e["mu"], e["stable_before"]) for e in an["events"] if e["fold"] is None]
     for f_raw, f in zip(an["folds"], folds):
         ev = [e for e in an["events"] if e["fold"] is f_raw]
@@ -752,7 +761,7 @@ def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, 
                                 bool(ev[0]["stable_before"]) if ev else False))
     bifs.sort(key=lambda b: b.frequency_Hz)
     curve_f = np.array([tracer.excitation_Hz(p) for p in tr["p"]])
-    curve_d = np.array([_rms_and_gradient(tracer, z, d0)[0] for z in tr["z"]])
+    curve_d = np.array([_rms_and_deviation(tracer, z, d0)[0] for z in tr["z"]])
     step_st = [s for s in an["stations"] if s[4] is None]
     counts = np.array([_n_outside(mu) for s, mu in zip(an["stations"], an["mus"]) if s[4] is None])
     curve_stable = counts == 0 if stability else np.ones(len(step_st), bool)

@@ -137,7 +137,7 @@ class PeriodicSolution:
 
     @property
     def mean_displacement_m(self) -> float:
-        return float(np.mean(self.state[0]))
+        return float(self.state[0].sum()) / self.n_points
 
     def displacement_rms(self, d0_m: float | None = None) -> float:
         """RMS of d - d0 over a period (eq. 21); exact for the trigonometric polynomial.
@@ -145,7 +145,8 @@ class PeriodicSolution:
         d0 defaults to the mean displacement (then this is the standard deviation).
         """
         d0 = self.mean_displacement_m if d0_m is None else float(d0_m)
-        return float(np.sqrt(np.mean((self.state[0] - d0) ** 2)))
+        dev = self.state[0] - d0
+        return math.sqrt(float(dev @ dev) / self.n_points)
 
     def peak_to_peak_m(self, samples: int = 512) -> float:
         d = self.evaluate(np.linspace(0, self.response_period_s, samples, endpoint=False))[0]
@@ -169,7 +170,7 @@ class PeriodicSolution:
         amp[0] = abs(c[0].real)
         return amp
 
-    @property
+    @functools.cached_property
     def truncation_ratio(self) -> float:
         """Amplitude of the highest retained harmonic of d over the largest non-constant one.
 

@@ -38,7 +38,7 @@ numba = _import_numba()
 
 __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
-    "collocation_residual_jacobian", "newton", "bordered_corrector", "solve_dense",
+    "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
     "monodromy", "GAUSS_NODES",
 ]
@@ -183,17 +183,10 @@ def _solve_into(a, b):
 
 
 @_jit
-def solve_dense(a, b):
-    """x with a x = b (copies; partial pivoting); ok False when a is singular."""
-    aa = a.copy()
-    x = b.copy()
-    ok = _solve_into(aa, x)
-    return x, ok
-
-
-@_jit
-def _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, want_jac):
-    """Scaled collocation residual into r (3M,), Jacobian into jac, omega X D^T (scaled) into drate."""
+def _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate):
+    """Scaled collocation residual into r (3M,), omega X D^T (scaled) into drate, and the Jacobian's
+    point-diagonal entries into e (3, 3, M): e[i, j, k] = -(df_i/dx_j at point k) scale_j / (scale_i
+    rate_ref). The whole Jacobian is omega / rate_ref kron(I3, D) plus these (:func:`_dense_jacobian`)."""
     m = u2.shape[0]
     x = np.empty((3, m))
     for i in range(3):
@@ -205,37 +198,199 @@ def _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, want_ja
         res_scale[i] = 1.0 / (scale[i] * rate_ref)
         for col in range(3):
             block[i, col] = scale[col] / (scale[i] * rate_ref)
-    if want_jac:
-        wr = omega / rate_ref
-        jac[:, :] = 0.0
-        for i in range(3):
-            for k in range(m):
-                for j in range(m):
-                    jac[i * m + k, i * m + j] = wr * dmat[k, j]
     a = np.empty((3, 3))
-    f = np.empty(3)
     for k in range(m):
-        f[0], f[1], f[2] = _unpack(constants, x[0, k], x[1, k], x[2, k], u2[k], a)
+        f0, f1, f2 = _unpack(constants, x[0, k], x[1, k], x[2, k], u2[k], a)
         for i in range(3):
+            fi = f0 if i == 0 else (f1 if i == 1 else f2)
             acc = 0.0
             for j in range(m):
                 acc += x[i, j] * dmat[k, j]
             rate = omega * acc
             drate[i * m + k] = rate * res_scale[i]
-            r[i * m + k] = (rate - f[i]) * res_scale[i]
-            if want_jac:
-                for col in range(3):
-                    jac[i * m + k, col * m + k] -= a[i, col] * block[i, col]
+            r[i * m + k] = (rate - fi) * res_scale[i]
+            for col in range(3):
+                e[i, col, k] = -a[i, col] * block[i, col]
+
+
+@_jit
+def _dense_jacobian(e, wr, dmat, jac):
+    """The dense scaled collocation Jacobian wr kron(I3, D) + point-diagonal entries e, into jac (3M, 3M)."""
+    m = dmat.shape[0]
+    jac[:, :] = 0.0
+    for i in range(3):
+        for k in range(m):
+            for j in range(m):
+                jac[i * m + k, i * m + j] = wr * dmat[k, j]
+    for i in range(3):
+        for col in range(3):
+            for k in range(m):
+                jac[i * m + k, col * m + k] += e[i, col, k]
+
+
+# ------------------------------------------------------------------ structured linear solves
+# The collocation Jacobian of eq. 16 for this model has a pattern the dense LU ignores. With the
+# states (d, eps1, v) and J = wr kron(I3, D) + point-diagonal entries e (:func:`_fill`), eq. 18 gives
+# e00 = e01 = e12 = 0 (d' = v; eps1' = a (lambda(d) - 1 - eps1)), e02 = -scale_v / (scale_d rate_ref)
+# and e11 = a / rate_ref constant. So for J x = r, with M-vectors x = (x0, x1, x2):
+#   row 0: wr D x0 + e02 x2 = r0                       ->  x2 = (r0 - wr D x0) / e02
+#   row 1: e10 x0 + (wr D + e11 I) x1 = r1             ->  x1 = C (r1 - e10 x0),  C = (wr D + e11 I)^-1
+#   row 2: e20 x0 + e21 x1 + (wr D + e22) x2 = r2      ->  S x0 = rho(r)
+# with S = e20 - e21 C e10 - (wr D + e22) wr D / e02 and rho(r) = r2 - e21 C r1 - (wr D + e22) r0 / e02
+# (diagonal entries written as vectors). D and C are circulant (D is the Fourier differentiation on
+# equispaced points: C has the eigenvalues 1 / (e11 + i wr kappa), kappa = -N..N), so C costs M N
+# operations and S an M x M LU instead of the 3M x 3M one: (3M)^3 / 3 -> M^3 / 3 flops, the same
+# solution to rounding. The pseudo-arclength system [[J, b], [w^T, tp]] is reduced the same way to
+# an (M + 1) x (M + 1) system (bordered S), so it stays regular at folds where S is singular.
+# test/solvers/test_hbm_kernels.py checks the pattern of eq. 18 and the solves against dense LU.
+
+
+@_jit
+def _trig_tables(m):
+    """cos, sin (m, N) of kappa theta_q for theta_q = 2 pi q / m, kappa = 1..N (N = (m - 1) / 2)."""
+    nh = (m - 1) // 2
+    cos_t = np.empty((m, nh))
+    sin_t = np.empty((m, nh))
+    for q in range(m):
+        for kap in range(1, nh + 1):
+            ang = 2.0 * math.pi * ((q * kap) % m) / m
+            cos_t[q, kap - 1] = math.cos(ang)
+            sin_t[q, kap - 1] = math.sin(ang)
+    return cos_t, sin_t
+
+
+@_jit
+def _circulant_inverse(wr, e11, cos_t, sin_t):
+    """First column c of C = (wr D + e11 I)^-1: C[k, l] = c[(k - l) mod m]."""
+    m, nh = cos_t.shape
+    c = np.empty(m)
+    for q in range(m):
+        acc = 1.0 / e11
+        for kap in range(1, nh + 1):
+            wk = wr * kap
+            acc += 2.0 * (e11 * cos_t[q, kap - 1] + wk * sin_t[q, kap - 1]) / (e11 * e11 + wk * wk)
+        c[q] = acc / m
+    return c
+
+
+@_jit
+def _second_derivative_column(dmat):
+    """First column of D^2 (circulant as D)."""
+    m = dmat.shape[0]
+    d2 = np.empty(m)
+    for q in range(m):
+        acc = 0.0
+        for j in range(m):
+            acc += dmat[q, j] * dmat[j, 0]
+        d2[q] = acc
+    return d2
+
+
+@_jit
+def _reduce_rhs(e, wr, dmat, cinv, v, out):
+    """rho(v) = v2 - e21 C v1 - (wr D + e22) v0 / e02 into out (m,)."""
+    m = dmat.shape[0]
+    e02 = e[0, 2, 0]
+    for k in range(m):
+        c1 = 0.0
+        d0 = 0.0
+        for l in range(m):
+            c1 += cinv[(k - l + m) % m] * v[m + l]
+            d0 += dmat[k, l] * v[l]
+        out[k] = v[2 * m + k] - e[2, 1, k] * c1 - (wr * d0 + e[2, 2, k] * v[k]) / e02
+
+
+@_jit
+def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
+    """Solve J x = rhs, or the bordered [[J, bvec], [wvec^T, tp]] x = rhs when ``bordered``, into rhs
+    (3M or 3M + 1) by the reduction above; False when the reduced matrix is singular."""
+    m = dmat.shape[0]
+    e02 = e[0, 2, 0]
+    ms = m + 1 if bordered else m
+    a = np.empty((ms, ms))
+    y = np.empty(ms)
+    _reduce_rhs(e, wr, dmat, cinv, rhs, y)
+    wr2 = wr * wr
+    for k in range(m):
+        for l in range(m):
+            q = (k - l + m) % m
+            a[k, l] = -e[2, 1, k] * cinv[q] * e[1, 0, l] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, l]) / e02
+        a[k, k] += e[2, 0, k]
+    dp = 0.0
+    if bordered:
+        rb = np.empty(m)
+        _reduce_rhs(e, wr, dmat, cinv, bvec, rb)
+        corner = tp
+        g = rhs[3 * m]
+        for k in range(m):
+            a[k, m] = rb[k]
+        for l in range(m):
+            q1 = 0.0
+            dtw2 = 0.0
+            for k in range(m):
+                q1 += cinv[(k - l + m) % m] * wvec[m + k]
+                dtw2 += dmat[k, l] * wvec[2 * m + k]
+            a[m, l] = wvec[l] - e[1, 0, l] * q1 - wr * dtw2 / e02
+            corner -= q1 * bvec[m + l] + wvec[2 * m + l] * bvec[l] / e02
+            g -= q1 * rhs[m + l] + wvec[2 * m + l] * rhs[l] / e02
+        a[m, m] = corner
+        y[m] = g
+    if not _solve_into(a, y):
+        return False
+    if bordered:
+        dp = y[m]
+    t1 = np.empty(m)
+    x1 = np.empty(m)
+    x2 = np.empty(m)
+    for l in range(m):
+        t1[l] = rhs[m + l] - e[1, 0, l] * y[l]
+        if bordered:
+            t1[l] -= bvec[m + l] * dp
+    for k in range(m):
+        acc1 = 0.0
+        accd = 0.0
+        for l in range(m):
+            acc1 += cinv[(k - l + m) % m] * t1[l]
+            accd += dmat[k, l] * y[l]
+        x1[k] = acc1
+        r0 = rhs[k] - bvec[k] * dp if bordered else rhs[k]
+        x2[k] = (r0 - wr * accd) / e02
+    for k in range(m):
+        rhs[k] = y[k]
+        rhs[m + k] = x1[k]
+        rhs[2 * m + k] = x2[k]
+    if bordered:
+        rhs[3 * m] = dp
+    return True
+
+
+@_jit
+def structured_solve(z, omega, u2, constants, scale, rate_ref, dmat, rhs):
+    """x with J(z, omega) x = rhs by the structured reduction (for tests: compare with a dense solve)."""
+    m = u2.shape[0]
+    r = np.empty(3 * m)
+    drate = np.empty(3 * m)
+    e = np.empty((3, 3, m))
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
+    cos_t, sin_t = _trig_tables(m)
+    wr = omega / rate_ref
+    x = rhs.copy()
+    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat), _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t),
+                           drate, drate, 0.0, x, False)
+    return x, ok
 
 
 @_jit
 def collocation_residual_jacobian(z, omega, u2, constants, scale, rate_ref, dmat):
     """(r, jac, dr/dln omega) of :meth:`CollocationSystem.residual_and_jacobian` at z (scaled)."""
     n = z.shape[0]
+    m = u2.shape[0]
     r = np.empty(n)
     jac = np.empty((n, n))
     drate = np.empty(n)
-    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    e = np.empty((3, 3, m))
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
+    _dense_jacobian(e, omega / rate_ref, dmat, jac)
     return r, jac, drate
 
 
@@ -243,24 +398,28 @@ def collocation_residual_jacobian(z, omega, u2, constants, scale, rate_ref, dmat
 def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
     """Damped Newton of :meth:`CollocationSystem.newton`: (z, iterations, scaled residual, status).
 
-    status 0: converged (full step below tol); otherwise a key of :data:`STATUS_MESSAGES`.
+    status 0: converged (full step below tol); otherwise a key of :data:`STATUS_MESSAGES`. The Newton
+    steps are solved by the structured reduction (:func:`_structured_solve`).
     """
     n = z0.shape[0]
+    m = u2.shape[0]
     z = z0.copy()
     z_new = np.empty(n)
     r = np.empty(n)
-    jac = np.empty((n, n))
+    e = np.empty((3, 3, m))
     r_new = np.empty(n)
-    jac_new = np.empty((n, n))
+    e_new = np.empty((3, 3, m))
     drate = np.empty(n)
-    work = np.empty((n, n))
     step = np.empty(n)
-    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+    wr = omega / rate_ref
+    cos_t, sin_t = _trig_tables(m)
+    d2col = _second_derivative_column(dmat)
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
+    cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
     rnorm = _max_abs(r)
     for it in range(1, max_iter + 1):
-        work[:, :] = jac
         step[:] = r
-        if not _solve_into(work, step):
+        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, drate, 0.0, step, False):
             return z, it, rnorm, 1
         snorm = _max_abs(step)
         if not np.isfinite(snorm):
@@ -271,7 +430,7 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
         for _ls in range(12):
             for i in range(n):
                 z_new[i] = z[i] - lam * step[i]
-            _fill(z_new, omega, u2, constants, scale, rate_ref, dmat, r_new, jac_new, drate, True)
+            _fill(z_new, omega, u2, constants, scale, rate_ref, dmat, r_new, e_new, drate)
             rn_new = _max_abs(r_new)
             if np.isfinite(rn_new) and (rn_new < rnorm or rn_new < 1e-13 or lam * snorm < tol):
                 ok = True
@@ -281,7 +440,7 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
             return z, it, rnorm, 3
         z, z_new = z_new, z
         r, r_new = r_new, r
-        jac, jac_new = jac_new, jac
+        e, e_new = e_new, e
         rnorm = rn_new
         if lam == 1.0 and snorm <= tol:
             return z, it, rnorm, 0
@@ -290,47 +449,76 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
 
 @_jit
 def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
-    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, bordered).
+    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, z_m, p_m).
 
-    Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0; gives up (ok False) on a
-    singular matrix, a non-finite or > 10 step, or after max_iter; converged when the step is
-    below max(tol, 1e-9). ``bordered`` is the matrix at the last iterate (the next tangent's).
+    Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0, each step by the structured
+    reduction of the bordered system (:func:`_structured_solve`); gives up (ok False) on a singular
+    matrix, a non-finite or > 10 step, or after max_iter; converged when the step is below
+    max(tol, 1e-9). (z_m, p_m) is the last iterate, where the last matrix was built (the next
+    tangent's: :func:`bordered_tangent`).
     """
     n = z_pred.shape[0]
+    m = u2.shape[0]
     zc = z_pred.copy()
     pc = p_pred
+    zm = z_pred.copy()
+    pm = p_pred
     r = np.empty(n)
-    jac = np.empty((n, n))
+    e = np.empty((3, 3, m))
     drate = np.empty(n)
-    big = np.empty((n + 1, n + 1))
-    work = np.empty((n + 1, n + 1))
+    wvec = np.empty(n)
+    for i in range(n):
+        wvec[i] = wz * tz[i]
     rhs = np.empty(n + 1)
+    cos_t, sin_t = _trig_tables(m)
+    d2col = _second_derivative_column(dmat)
     for it in range(1, max_iter + 1):
         omega = math.exp(pc)
-        _fill(zc, omega, u2, constants, scale, rate_ref, dmat, r, jac, drate, True)
+        wr = omega / rate_ref
+        _fill(zc, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
+        zm[:] = zc
+        pm = pc
         g = 0.0
         for i in range(n):
             g += tz[i] * (zc[i] - z_pred[i])
         g = wz * g + tp * (pc - p_pred)
-        big[:n, :n] = jac
-        big[:n, n] = drate
-        for i in range(n):
-            big[n, i] = wz * tz[i]
-        big[n, n] = tp
-        work[:, :] = big
         rhs[:n] = r
         rhs[n] = g
-        if not _solve_into(work, rhs):
-            return False, zc, pc, it, big
+        cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
+        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, wvec, tp, rhs, True):
+            return False, zc, pc, it, zm, pm
         for i in range(n):
             zc[i] -= rhs[i]
         pc -= rhs[n]
         snorm = _max_abs(rhs)
         if not np.isfinite(snorm) or snorm > 10.0:
-            return False, zc, pc, it, big
+            return False, zc, pc, it, zm, pm
         if snorm < max(tol, 1e-9):
-            return True, zc, pc, it, big
-    return False, zc, pc, max_iter, big
+            return True, zc, pc, it, zm, pm
+    return False, zc, pc, max_iter, zm, pm
+
+
+@_jit
+def bordered_tangent(z, p, tz, tp, wz, u2, constants, scale, rate_ref, dmat):
+    """(t, ok): the solution of [[J(z, e^p), dR/dp], [wz tz^T, tp]] t = e_n (the unnormalised tangent of
+    the continuation), by the structured reduction; ok False when the bordered matrix is singular."""
+    n = z.shape[0]
+    m = u2.shape[0]
+    r = np.empty(n)
+    e = np.empty((3, 3, m))
+    drate = np.empty(n)
+    omega = math.exp(p)
+    wr = omega / rate_ref
+    _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
+    wvec = np.empty(n)
+    for i in range(n):
+        wvec[i] = wz * tz[i]
+    t = np.zeros(n + 1)
+    t[n] = 1.0
+    cos_t, sin_t = _trig_tables(m)
+    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat),
+                           _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t), drate, wvec, tp, t, True)
+    return t, ok
 
 
 @_jit
@@ -623,8 +811,10 @@ def _self_check() -> None:
     solve_batch(z[None], np.empty((0, 3)), np.empty(0), u2[None], np.array([1e6]), np.array([10.0]),
                 constants, scale, 60.0, dmat, 1e-10, 2)
     bordered_corrector(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat, 1e-10, 2)
-    for n in (3, LAPACK_FROM + 1):
-        solve_dense(np.eye(n), np.ones(n))
+    bordered_tangent(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat)
+    structured_solve(z, 10.0, u2, constants, scale, 60.0, dmat, np.ones(3 * m))
+    for n in (3, LAPACK_FROM + 1):   # both branches of the small dense solver
+        _solve_into(np.eye(n), np.ones(n))
     state = (z.reshape(3, m) * scale[:, None])
     max_spectral_radius(state[None], u2[None], constants, scale, 1)
     max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)

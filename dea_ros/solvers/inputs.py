@@ -7,6 +7,7 @@ can restart there. Periodic inputs are functions of the phase
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -224,8 +225,10 @@ class SinePeriodic(PeriodicInput):
     offset_V: float = 0.0
 
     def __post_init__(self):
-        check_voltage([self.amplitude_V, self.offset_V])
-        if not (np.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
+        a, o = float(self.amplitude_V), float(self.offset_V)
+        if not (math.isfinite(a) and math.isfinite(o) and max(abs(a), abs(o)) <= 1e6):
+            check_voltage([a, o])   # raises, naming the problem (a sweep makes thousands: checked cheaply first)
+        if not (math.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
             raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
 
     def at_phase(self, theta):

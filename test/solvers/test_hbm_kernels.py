@@ -169,3 +169,79 @@ def test_a_numba_that_cannot_compile_the_kernels_falls_back_to_numpy(a2, monkeyp
     assert scaled_diff(a2, sol.state, ref.state) < 1e-10
     with pytest.raises(RuntimeError, match="could not run"):
         hbm_kernels.set_enabled(True)
+
+
+def test_model_jacobian_has_the_pattern_the_structured_solve_uses(a2):
+    """The reduction of the collocation systems (hbm_kernels._structured_solve) needs eq. 18's pattern:
+    d' = v (row 0: 0, 0, 1) and eps1' = a (lambda(d) - 1 - eps1) (row 1: *, -a constant, 0)."""
+    from dea_ros.model.dynamics import state_equation
+
+    constants = model_setup(a2).system(5).constants
+    rng = np.random.default_rng(3)
+    d = rng.uniform(-4e-3, 8e-3, 50)
+    eps1 = rng.uniform(-0.05, 0.1, 50)
+    v = rng.uniform(-0.5, 0.5, 50)
+    u2 = rng.uniform(0.0, 9e6, 50)
+    _f, jac = state_equation(constants, d, eps1, v, u2)
+    assert np.all(jac[0][0] == 0) and np.all(jac[0][1] == 0) and np.all(jac[0][2] == 1)
+    assert np.all(jac[1][2] == 0)
+    assert np.ptp(jac[1][1]) == 0 and jac[1][1][0] < 0
+
+
+@pytest.mark.parametrize("m", [5, 9, 17, 33])
+def test_structured_solves_equal_dense_lu(a2, m):
+    """Newton steps and the bordered (pseudo-arclength) systems: the reduction to M unknowns gives
+    the dense solution to rounding, at random states and frequencies (either path: without numba
+    the same code runs as Python)."""
+    setup = model_setup(a2)
+    sy = setup.system(m)
+    rng = np.random.default_rng(m)
+    for _ in range(3):
+        z = rng.normal(size=3 * m) * 0.3 + np.repeat([1.0, 0.5, 0.0], m)
+        u2 = (rng.uniform(500.0, 3000.0) * np.sin(np.linspace(0.0, np.pi, m, endpoint=False))) ** 2
+        omega = 2 * np.pi * rng.uniform(0.1, 40.0)
+        r, jac, dr = hbm_kernels.collocation_residual_jacobian(z, omega, u2, sy.constants, sy.scale, sy.rate_ref,
+                                                               sy.d_theta)
+        rhs = rng.normal(size=3 * m)
+        x, ok = hbm_kernels.structured_solve(z, omega, u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, rhs)
+        want = np.linalg.solve(jac, rhs)
+        assert ok and np.max(np.abs(x - want)) <= 1e-11 * np.max(np.abs(want))
+        tz, tp, wz = rng.normal(size=3 * m), rng.normal(), 1.0 / (3 * m)
+        big = np.block([[jac, dr[:, None]], [wz * tz[None, :], np.array([[tp]])]])
+        t, ok = hbm_kernels.bordered_tangent(z, np.log(omega), tz, tp, wz, u2, sy.constants, sy.scale, sy.rate_ref,
+                                             sy.d_theta)
+        want = np.linalg.solve(big, np.eye(3 * m + 1)[-1])
+        assert ok and np.max(np.abs(t - want)) <= 1e-11 * np.max(np.abs(want))
+
+
+def test_bordered_system_stays_regular_at_a_fold(a2):
+    """At a fold of the frequency response the collocation Jacobian is singular; the bordered
+    system of the continuation is not, and the reduced solve must still give its solution."""
+    grid = np.linspace(8.0, 11.0, 30)
+    sweep = frequency_sweep(a2, SinePeriodic(2500.0, 8.0), grid, n_harmonics=6, stability=False)
+    assert sweep.folds, "A2 at 2.5 kV has folds near resonance"
+    fold = sweep.folds[0]
+    near = min(sweep.points, key=lambda p: abs(p.frequency_Hz - fold.frequency_Hz))
+    sy = model_setup(a2).system(near.solution.n_points)
+    u2 = sy_u2(near, sy)
+    omega = 2 * np.pi * fold.frequency_Hz * 2          # response frequency of the T/2 orbit
+    # Newton at the fold frequency creeps onto the fold point (it cannot converge quadratically there)
+    z, _it, _res, _status = hbm_kernels.newton(sy.to_z(near.solution.state), omega, u2, sy.constants, sy.scale,
+                                               sy.rate_ref, sy.d_theta, 1e-12, 60)
+    r, jac, dr = hbm_kernels.collocation_residual_jacobian(z, omega, u2, sy.constants, sy.scale, sy.rate_ref,
+                                                           sy.d_theta)
+    assert np.linalg.cond(jac) > 1e8                   # (numerically) singular: the fold
+    tz = np.linalg.svd(jac)[2][-1]                     # the (near-)null direction: tangent at a fold
+    wz, tp = 1.0 / z.size, 1e-6
+    assert np.linalg.cond(np.block([[jac, dr[:, None]], [wz * tz[None, :], np.array([[tp]])]])) < 1e6
+    big = np.block([[jac, dr[:, None]], [wz * tz[None, :], np.array([[tp]])]])
+    t, ok = hbm_kernels.bordered_tangent(z, np.log(omega), tz, tp, wz, u2, sy.constants, sy.scale, sy.rate_ref,
+                                         sy.d_theta)
+    want = np.linalg.solve(big, np.eye(z.size + 1)[-1])
+    assert ok and np.max(np.abs(t - want)) <= 1e-8 * np.max(np.abs(want))
+
+
+def sy_u2(point, system):
+    """u^2 at the collocation phases of a T/2 solution (what the solvers pass the kernels)."""
+    m = system.m
+    return point.solution.periodic_input.at_phase(np.pi * np.arange(m) / m) ** 2
