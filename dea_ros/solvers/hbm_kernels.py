@@ -294,9 +294,9 @@ def _reduce_rhs(e, wr, dmat, cinv, v, out):
     for k in range(m):
         c1 = 0.0
         d0 = 0.0
-        for l in range(m):
-            c1 += cinv[(k - l + m) % m] * v[m + l]
-            d0 += dmat[k, l] * v[l]
+        for jj in range(m):
+            c1 += cinv[(k - jj + m) % m] * v[m + jj]
+            d0 += dmat[k, jj] * v[jj]
         out[k] = v[2 * m + k] - e[2, 1, k] * c1 - (wr * d0 + e[2, 2, k] * v[k]) / e02
 
 
@@ -312,9 +312,9 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
     _reduce_rhs(e, wr, dmat, cinv, rhs, y)
     wr2 = wr * wr
     for k in range(m):
-        for l in range(m):
-            q = (k - l + m) % m
-            a[k, l] = -e[2, 1, k] * cinv[q] * e[1, 0, l] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, l]) / e02
+        for jj in range(m):
+            q = (k - jj + m) % m
+            a[k, jj] = -e[2, 1, k] * cinv[q] * e[1, 0, jj] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, jj]) / e02
         a[k, k] += e[2, 0, k]
     dp = 0.0
     if bordered:
@@ -324,15 +324,15 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
         g = rhs[3 * m]
         for k in range(m):
             a[k, m] = rb[k]
-        for l in range(m):
+        for jj in range(m):
             q1 = 0.0
             dtw2 = 0.0
             for k in range(m):
-                q1 += cinv[(k - l + m) % m] * wvec[m + k]
-                dtw2 += dmat[k, l] * wvec[2 * m + k]
-            a[m, l] = wvec[l] - e[1, 0, l] * q1 - wr * dtw2 / e02
-            corner -= q1 * bvec[m + l] + wvec[2 * m + l] * bvec[l] / e02
-            g -= q1 * rhs[m + l] + wvec[2 * m + l] * rhs[l] / e02
+                q1 += cinv[(k - jj + m) % m] * wvec[m + k]
+                dtw2 += dmat[k, jj] * wvec[2 * m + k]
+            a[m, jj] = wvec[jj] - e[1, 0, jj] * q1 - wr * dtw2 / e02
+            corner -= q1 * bvec[m + jj] + wvec[2 * m + jj] * bvec[jj] / e02
+            g -= q1 * rhs[m + jj] + wvec[2 * m + jj] * rhs[jj] / e02
         a[m, m] = corner
         y[m] = g
     if not _solve_into(a, y):
@@ -342,16 +342,16 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
     t1 = np.empty(m)
     x1 = np.empty(m)
     x2 = np.empty(m)
-    for l in range(m):
-        t1[l] = rhs[m + l] - e[1, 0, l] * y[l]
+    for jj in range(m):
+        t1[jj] = rhs[m + jj] - e[1, 0, jj] * y[jj]
         if bordered:
-            t1[l] -= bvec[m + l] * dp
+            t1[jj] -= bvec[m + jj] * dp
     for k in range(m):
         acc1 = 0.0
         accd = 0.0
-        for l in range(m):
-            acc1 += cinv[(k - l + m) % m] * t1[l]
-            accd += dmat[k, l] * y[l]
+        for jj in range(m):
+            acc1 += cinv[(k - jj + m) % m] * t1[jj]
+            accd += dmat[k, jj] * y[jj]
         x1[k] = acc1
         r0 = rhs[k] - bvec[k] * dp if bordered else rhs[k]
         x2[k] = (r0 - wr * accd) / e02
@@ -375,8 +375,8 @@ def structured_solve(z, omega, u2, constants, scale, rate_ref, dmat, rhs):
     cos_t, sin_t = _trig_tables(m)
     wr = omega / rate_ref
     x = rhs.copy()
-    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat), _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t),
-                           drate, drate, 0.0, x, False)
+    cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
+    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat), cinv, drate, drate, 0.0, x, False)
     return x, ok
 
 
