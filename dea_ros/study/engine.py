@@ -26,6 +26,8 @@ __all__ = ["Engine", "EngineError", "ENGINE_KINDS", "Progress", "dask_available"
 
 ENGINE_KINDS = ("auto", "serial", "processes", "dask")
 _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+_NO_WORKER_PROFILER = {"distributed.worker.profile.enabled": False, "distributed.worker.profile.interval": "1s",
+                       "distributed.worker.profile.cycle": "10s"}
 
 
 class EngineError(RuntimeError):
@@ -107,8 +109,14 @@ class Engine:
                     raise EngineError(f"--scheduler {self.scheduler}: cannot connect ({exc}); is the scheduler "
                                       "running (dask scheduler) and reachable?") from None
             else:
-                self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                             dashboard_address=None, env=dict(_ONE_THREAD))
+                import dask
+
+                # Dask's statistical profiler samples every worker's stack each 10 ms: ~25 % of the
+                # time of this Python-heavy work (measured, bench/bench_study.py). The local workers
+                # start without it (older distributed versions, without the switch: sampled each 1 s).
+                with dask.config.set(_NO_WORKER_PROFILER):
+                    self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                                 dashboard_address=None, env=dict(_ONE_THREAD))
                 self._client = Client(self._cluster)
         return self
 
