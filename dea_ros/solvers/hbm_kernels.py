@@ -249,13 +249,22 @@ def _dense_jacobian(e, wr, dmat, jac):
 def _trig_tables(m):
     """cos, sin (m, N) of kappa theta_q for theta_q = 2 pi q / m, kappa = 1..N (N = (m - 1) / 2)."""
     nh = (m - 1) // 2
+    base_c = np.empty(m)
+    base_s = np.empty(m)
+    for j in range(m):
+        ang = 2.0 * math.pi * j / m
+        base_c[j] = math.cos(ang)
+        base_s[j] = math.sin(ang)
     cos_t = np.empty((m, nh))
     sin_t = np.empty((m, nh))
     for q in range(m):
+        j = 0
         for kap in range(1, nh + 1):
-            ang = 2.0 * math.pi * ((q * kap) % m) / m
-            cos_t[q, kap - 1] = math.cos(ang)
-            sin_t[q, kap - 1] = math.sin(ang)
+            j += q
+            if j >= m:
+                j -= m
+            cos_t[q, kap - 1] = base_c[j]
+            sin_t[q, kap - 1] = base_s[j]
     return cos_t, sin_t
 
 
@@ -271,6 +280,12 @@ def _circulant_inverse(wr, e11, cos_t, sin_t):
             acc += 2.0 * (e11 * cos_t[q, kap - 1] + wk * sin_t[q, kap - 1]) / (e11 * e11 + wk * wk)
         c[q] = acc / m
     return c
+
+
+@_jit
+def _wrap(q, m):
+    """q mod m for -m <= q < m (no integer division: this is in the innermost loops)."""
+    return q + m if q < 0 else q
 
 
 @_jit
@@ -295,7 +310,7 @@ def _reduce_rhs(e, wr, dmat, cinv, v, out):
         c1 = 0.0
         d0 = 0.0
         for jj in range(m):
-            c1 += cinv[(k - jj + m) % m] * v[m + jj]
+            c1 += cinv[_wrap(k - jj, m)] * v[m + jj]
             d0 += dmat[k, jj] * v[jj]
         out[k] = v[2 * m + k] - e[2, 1, k] * c1 - (wr * d0 + e[2, 2, k] * v[k]) / e02
 
@@ -313,7 +328,7 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
     wr2 = wr * wr
     for k in range(m):
         for jj in range(m):
-            q = (k - jj + m) % m
+            q = _wrap(k - jj, m)
             a[k, jj] = -e[2, 1, k] * cinv[q] * e[1, 0, jj] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, jj]) / e02
         a[k, k] += e[2, 0, k]
     dp = 0.0
@@ -328,7 +343,7 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
             q1 = 0.0
             dtw2 = 0.0
             for k in range(m):
-                q1 += cinv[(k - jj + m) % m] * wvec[m + k]
+                q1 += cinv[_wrap(k - jj, m)] * wvec[m + k]
                 dtw2 += dmat[k, jj] * wvec[2 * m + k]
             a[m, jj] = wvec[jj] - e[1, 0, jj] * q1 - wr * dtw2 / e02
             corner -= q1 * bvec[m + jj] + wvec[2 * m + jj] * bvec[jj] / e02
@@ -350,7 +365,7 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
         acc1 = 0.0
         accd = 0.0
         for jj in range(m):
-            acc1 += cinv[(k - jj + m) % m] * t1[jj]
+            acc1 += cinv[_wrap(k - jj, m)] * t1[jj]
             accd += dmat[k, jj] * y[jj]
         x1[k] = acc1
         r0 = rhs[k] - bvec[k] * dp if bordered else rhs[k]
