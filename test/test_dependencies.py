@@ -42,7 +42,7 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "se
 PIP_NAMES = {"numpy": "numpy", "scipy": "scipy", "yaml": "PyYAML", "matplotlib": "matplotlib", "serial": "pyserial",
              "mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap", "lz4": "mcap"}
 #: optional: no rosdep key; extras of setup.py, imported only where needed
-OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba", "distributed": "distributed",
+OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba", "dask": "dask", "distributed": "distributed",
             "pyarrow": "pyarrow", "tqdm": "tqdm"}
 
 
