@@ -8,7 +8,10 @@ Ubuntu's ``python3-numba``) they are compiled on first use (cached on disk) and 
 without numba, or with the environment variable ``DEA_ROS_NUMBA=0``, the solvers keep their
 vectorised numpy path. Both paths implement the same equations (collocation residual and
 Jacobian of eq. 16, damped Newton, linearised initial guess, 4th-order Magnus monodromy) and
-agree to rounding (checked by test/solvers/test_hbm_kernels.py).
+agree to rounding (checked by test/solvers/test_hbm_kernels.py). One difference of method: the
+compiled Newton and pseudo-arclength steps solve their linear systems by a reduction that uses
+the pattern of eq. 18 (see "structured linear solves" below: M unknowns instead of 3M), the numpy
+path by dense LU; the solutions are the same to rounding.
 
 The model is :func:`dea_ros.model.dynamics.state_equation` compiled as it is (one definition).
 Every kernel works in the scaled variables of
