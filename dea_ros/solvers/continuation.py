@@ -38,6 +38,7 @@ depend on the frequency grid.
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -419,7 +420,8 @@ class _Tracer:
                 self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, float(self.tol), int(max_iter))
             if not ok:
                 return None
-            self.last_bordered = (z_last, p_last, tz, tp)   # where the last matrix was built
+            # the next tangent: the bordered system where the corrector built its last matrix
+            self.last_tangent = functools.partial(self._compiled_tangent, z_last, p_last, tz, tp)
             return zc, pc, it
         zc, pc = z_pred.copy(), p_pred
         for it in range(1, max_iter + 1):
@@ -435,15 +437,14 @@ class _Tracer:
             if not np.isfinite(snorm) or snorm > 10.0:
                 return None
             if snorm < max(self.tol, 1e-9):
-                self.last_bordered = big   # at the last iterate (within tol): the next tangent's matrix
+                # at the last iterate (within tol): the next tangent's matrix
+                self.last_tangent = functools.partial(self._unit_tangent, big)
                 return zc, pc, it
         return None
 
     def tangent_from_last(self):
-        """Unit tangent from the bordered matrix of the last converged corrector (no new Jacobian)."""
-        if isinstance(self.last_bordered, tuple):
-            return self._compiled_tangent(*self.last_bordered)
-        return self._unit_tangent(self.last_bordered)
+        """Unit tangent from the bordered system of the last converged corrector."""
+        return self.last_tangent()
 
     def solve_at(self, p_target, z_seed):
         return self.system.newton(z_seed, math.exp(p_target), self.u2, tol=self.tol, max_iter=30)
