@@ -607,6 +607,60 @@ def resample_state(x: np.ndarray, m: int) -> np.ndarray:
 _GAUSS = (0.5 - math.sqrt(3.0) / 6.0, 0.5 + math.sqrt(3.0) / 6.0)
 
 
+@functools.lru_cache(maxsize=256)
+def _gauss_phases(steps: int) -> np.ndarray:
+    """Phases 2 pi (k + g) / steps (rad) of the two Gauss points g of the Magnus steps k = 0..steps-1
+    over one response period: all first points, then all second points (read-only, shared)."""
+    phase = np.arange(2 * steps, dtype=float)
+    phase[:steps] += _GAUSS[0]
+    phase[steps:] += _GAUSS[1] - steps
+    phase *= 2.0 * np.pi / steps
+    phase.flags.writeable = False
+    return phase
+
+
+def _squared_input_rows(inputs, divisors, phases_for) -> np.ndarray:
+    """u^2 (V^2) of ``inputs[b]`` at the phases ``phases_for(divisors[b])`` (rad), one row each:
+    evaluated once per distinct waveform (:meth:`PeriodicInput.waveform_key`) and divisor."""
+    rows, first = [], {}
+    for inp, divisor in zip(inputs, divisors):
+        key = inp.waveform_key()
+        key = (id(inp) if key is None else key, divisor)
+        row = first.get(key)
+        if row is None:
+            row = first[key] = inp.at_phase(phases_for(divisor)) ** 2
+        rows.append(row)
+    return np.stack(rows)
+
+
+def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.ndarray, steps: np.ndarray, inputs,
+                          divisors, scale: np.ndarray, order: int) -> np.ndarray:
+    """Monodromies (B, 3, 3) by the compiled 4th-order Magnus scheme, one kernel call: solution b
+    (collocation values ``states[b]`` over the response period ``periods_s[b]`` of ``inputs[b]`` seen
+    with ``divisors[b]``) in ``steps[b]`` steps. The input at the Gauss phases is evaluated once
+    per distinct waveform, divisor and step count."""
+    steps = np.asarray(steps, dtype=np.int64)
+    start = np.empty(steps.size, dtype=np.int64)
+    cos_parts, sin_parts, u2_parts, offsets = [], [], [], {}
+    offset = 0
+    for b, (inp, divisor, n_steps) in enumerate(zip(inputs, divisors, steps.tolist())):
+        key = inp.waveform_key()
+        key = (id(inp) if key is None else key, divisor, n_steps)
+        at = offsets.get(key)
+        if at is None:
+            phase = _gauss_phases(n_steps)
+            cos_parts.append(np.cos(phase))
+            sin_parts.append(np.sin(phase))
+            u2_parts.append(inp.at_phase(phase / divisor) ** 2)
+            at = offsets[key] = offset
+            offset += 2 * n_steps
+        start[b] = at
+    return hbm_kernels.monodromy_batch(
+        np.ascontiguousarray(states, dtype=float), steps, np.asarray(periods_s, dtype=float) / steps,
+        np.concatenate(cos_parts), np.concatenate(sin_parts), np.concatenate(u2_parts), start, model.constants,
+        np.asarray(scale, dtype=float), int(order))
+
+
 def _expm_small(mats: np.ndarray, order: int = 14) -> np.ndarray:
     """exp of a stack of small matrices with norm <= ~1 (Taylor, Horner form; error < 1e-14)."""
     eye = np.broadcast_to(np.eye(mats.shape[-1]), mats.shape)
@@ -672,12 +726,9 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
         steps = int(min(8192, max(48, math.ceil(rate * period / 0.5))))
     h = period / steps
     if fast:  # the same Gauss phases, 2 pi (k + g) / steps
-        phase = np.arange(2 * steps, dtype=float)
-        phase[:steps] += _GAUSS[0]
-        phase[steps:] += _GAUSS[1] - steps
-        phase *= 2.0 * np.pi / steps
+        phase = _gauss_phases(steps)
         u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
-        return hbm_kernels.monodromy(state, phase, u2, h, model.constants, scale, 14)
+        return hbm_kernels.monodromy(state, np.cos(phase), np.sin(phase), u2, h, model.constants, scale, 14)
     starts = np.arange(steps) * h
     t_gauss = np.concatenate([starts + _GAUSS[0] * h, starts + _GAUSS[1] * h])
     phase = omega_resp * t_gauss
@@ -747,22 +798,13 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     scale = np.asarray(scale, dtype=float)
     states = np.stack([sol.state for sol in sols])
     m = states.shape[2]
-    u2_nodes = np.stack([sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
-                         for sol in sols])
+    inputs = [sol.periodic_input for sol in sols]
+    divisors = [sol.period_divisor for sol in sols]
+    u2_nodes = _squared_input_rows(inputs, divisors, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
-    mats = np.empty((len(sols), 3, 3))
-    phases = {}
-    for b, sol in enumerate(sols):
-        period = sol.response_period_s
-        steps = int(min(8192, max(48, math.ceil(float(rates[b]) * period / 0.5))))
-        phase = phases.get(steps)
-        if phase is None:  # the Gauss phases 2 pi (k + g) / steps of monodromy_matrix
-            phase = phases[steps] = np.arange(2 * steps, dtype=float)
-            phase[:steps] += _GAUSS[0]
-            phase[steps:] += _GAUSS[1] - steps
-            phase *= 2.0 * np.pi / steps
-        u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
-        mats[b] = hbm_kernels.monodromy(states[b], phase, u2, period / steps, model.constants, scale, 14)
+    periods = np.array([sol.response_period_s for sol in sols])
+    steps = np.minimum(8192, np.maximum(48, np.ceil(rates * periods / 0.5))).astype(np.int64)
+    mats = _compiled_monodromies(model, states, periods, steps, inputs, divisors, scale, 14)
     mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for sol, mu_k in zip(sols, mu):
@@ -808,18 +850,15 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
         rate = np.max(np.abs(np.linalg.eigvals(a_nodes[:, ::3])), axis=(1, 2))  # rho(A) along the orbit
     need = np.clip(np.ceil(rate * periods / h_rho), min_steps, 8192)
     steps_of = (2 ** np.ceil(np.log2(need))).astype(int)
+    if fast:
+        mats = _compiled_monodromies(model, x_all, periods, steps_of, [periodic_input] * nb, [divisor] * nb,
+                                     scale, 12)
+        mu = np.linalg.eigvals(mats)
+        return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for steps in np.unique(steps_of):
         idx = np.nonzero(steps_of == steps)[0]
         frac = np.arange(steps) / steps
         phase = 2.0 * np.pi * np.concatenate([frac + _GAUSS[0] / steps, frac + _GAUSS[1] / steps])
-        if fast:
-            u2 = periodic_input.at_phase(phase / divisor) ** 2
-            mats = np.stack([hbm_kernels.monodromy(x_all[b], phase, u2, float(periods[b] / steps), model.constants,
-                                                   scale, 12) for b in idx])
-            mu = np.linalg.eigvals(mats)
-            order = np.argsort(-np.abs(mu), axis=1)
-            out[idx] = np.take_along_axis(mu, order, axis=1)
-            continue
         pmat = periodic_interpolation_matrix(m, phase)                     # (2S, M)
         x = x_all[idx] @ pmat.T                                            # (b, 3, 2S)
         u2 = periodic_input.at_phase(phase / divisor) ** 2
@@ -904,7 +943,7 @@ def solve_native_batch(
     system = setup.system(m)
     nb = len(inputs)
     phases = 2.0 * np.pi * np.arange(m) / m
-    u2 = np.stack([inp.at_phase(phases / divisor) ** 2 for inp in inputs])          # (B, M)
+    u2 = _squared_input_rows(inputs, [divisor] * nb, lambda div: phases / div)      # (B, M)
     omega = np.array([inp.omega * divisor for inp in inputs])                       # (B,)
     if x_guesses is None:
         x0 = None if hbm_kernels.enabled() else _linear_guess_batch(setup, u2, omega, m)
@@ -1010,6 +1049,8 @@ def _batch_results(params, setup, system, inputs, n_harmonics, divisor, zf, iter
     """Solutions of a batch (failed items re-solved alone), with stability on request."""
     nb = len(inputs)
     m = system.m
+    states = np.asarray(zf).reshape(nb, 3, m) * system.scale[None, :, None]
+    iterations, residual = np.asarray(iterations).tolist(), np.asarray(residual, dtype=float).tolist()
     results = []
     for k, inp in enumerate(inputs):
         if failed[k]:
@@ -1017,8 +1058,7 @@ def _batch_results(params, setup, system, inputs, n_harmonics, divisor, zf, iter
                                use_symmetry=use_symmetry, stability=False)
         else:
             sol = PeriodicSolution(
-                frequency_Hz=inp.frequency_Hz, periodic_input=inp,
-                state=zf[k].reshape(3, m) * system.scale[:, None], period_divisor=divisor,
+                frequency_Hz=inp.frequency_Hz, periodic_input=inp, state=states[k], period_divisor=divisor,
                 n_harmonics=int(n_harmonics), method="native-batch", iterations=int(iterations[k]),
                 residual=float(residual[k]), wall_time_s=0.0,
             )

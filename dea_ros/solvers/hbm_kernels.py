@@ -43,7 +43,7 @@ __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
     "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
-    "monodromy", "GAUSS_NODES",
+    "monodromy", "monodromy_batch", "GAUSS_NODES",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
@@ -749,9 +749,9 @@ def _jac9(constants, d, e, v, u2, rt):
 
 
 @_jit
-def _state_at_phase(c0, ca, cs, nh, th):
-    """(d, e, v) of the truncated Fourier series (mean c0, cos/sin coefficients ca, cs up to nh) at phase th."""
-    c1, s1 = math.cos(th), math.sin(th)
+def _state_at_phase(c0, ca, cs, nh, c1, s1):
+    """(d, e, v) of the truncated Fourier series (mean c0, cos/sin coefficients ca, cs up to nh) at the
+    phase whose cosine and sine are c1, s1."""
     cn, sn = c1, s1
     d, e, v = c0[0], c0[1], c0[2]
     for n in range(1, nh + 1):
@@ -763,17 +763,17 @@ def _state_at_phase(c0, ca, cs, nh, th):
 
 
 @_jit
-def monodromy(state, phases, u2, h, constants, scale, order):
+def monodromy(state, cos_phases, sin_phases, u2, h, constants, scale, order):
     """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
 
-    ``phases`` (2S,) are the phases of the two Gauss points of the S steps (first points of all
-    steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
+    ``cos_phases``, ``sin_phases`` (2S,) are the cosines and sines of the phases of the two Gauss
+    points of the S steps (first points of all steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
     Taylor order of the matrix exponential (<= 15; that of ``_expm_small`` / ``_expm3``). The
     state is evaluated by its trigonometric interpolant through the M collocation values.
     """
     m = state.shape[1]
     nh = (m - 1) // 2
-    steps = phases.shape[0] // 2
+    steps = cos_phases.shape[0] // 2
     # trigonometric coefficients of the interpolant: x(theta) = c0 + sum_n ca_n cos(n theta) + cs_n sin(n theta)
     c0 = np.zeros(3)
     ca = np.zeros((3, nh + 1))
@@ -799,14 +799,30 @@ def monodromy(state, phases, u2, h, constants, scale, order):
     total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     for s in range(steps):
         # the state at the two Gauss points (3x3 matrices below are 9-tuples: kept in registers)
-        d, e, v = _state_at_phase(c0, ca, cs, nh, phases[s])
+        d, e, v = _state_at_phase(c0, ca, cs, nh, cos_phases[s], sin_phases[s])
         a1 = _jac9(constants, d, e, v, u2[s], rt)
-        d, e, v = _state_at_phase(c0, ca, cs, nh, phases[s + steps])
+        d, e, v = _state_at_phase(c0, ca, cs, nh, cos_phases[s + steps], sin_phases[s + steps])
         a2 = _jac9(constants, d, e, v, u2[s + steps], rt)
         om = _lin9(0.5, _lin9(1.0, a1, 1.0, a2), c3, _lin9(1.0, _mul9(a2, a1), -1.0, _mul9(a1, a2)))
         total = _mul9(_expm9(om, coef), total)     # later steps multiply from the left
     out = np.empty((3, 3))
     out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2], out[2, 0], out[2, 1], out[2, 2] = total
+    return out
+
+
+@_jit
+def monodromy_batch(states, steps, h, cos_flat, sin_flat, u2_flat, start, constants, scale, order):
+    """Monodromies (B, 3, 3) of many solutions in one call: :func:`monodromy` of item b with
+    ``steps[b]`` steps of ``h[b]`` s, the cosines and sines of its Gauss phases and its input squared
+    read from ``cos_flat`` / ``sin_flat`` / ``u2_flat`` at ``start[b]`` (2 steps[b] values: shared by
+    items with the same waveform and step count)."""
+    nb = states.shape[0]
+    out = np.empty((nb, 3, 3))
+    for b in range(nb):
+        lo = start[b]
+        hi = lo + 2 * steps[b]
+        out[b] = monodromy(states[b], cos_flat[lo:hi], sin_flat[lo:hi], u2_flat[lo:hi], h[b], constants, scale,
+                           order)
     return out
 
 
@@ -837,5 +853,7 @@ def _self_check() -> None:
     max_spectral_radius(state[None], u2[None], constants, scale, 1)
     max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)
     phases = np.linspace(0.0, 6.0, 8)
-    monodromy(state, phases, np.full(8, 1e6), 1e-3, constants, scale, 14)
+    monodromy(state, np.cos(phases), np.sin(phases), np.full(8, 1e6), 1e-3, constants, scale, 14)
+    monodromy_batch(state[None], np.array([4]), np.array([1e-3]), np.cos(phases), np.sin(phases), np.full(8, 1e6),
+                    np.array([0]), constants, scale, 14)
     collocation_residual_jacobian(z, 10.0, u2, constants, scale, 60.0, dmat)

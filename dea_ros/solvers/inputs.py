@@ -192,6 +192,11 @@ class PeriodicInput:
     def with_frequency(self, frequency_Hz: float) -> "PeriodicInput":  # pragma: no cover
         raise NotImplementedError
 
+    def waveform_key(self):
+        """A hashable key, equal for inputs whose ``at_phase`` is the same function (they may differ
+        in frequency), so solvers evaluate a shared waveform once; None when unknown (never shared)."""
+        return None
+
     def as_signal(self) -> VoltageSignal:
         """The same input as a transient signal u(t) for forward integration."""
         inp = self
@@ -232,6 +237,9 @@ class SinePeriodic(PeriodicInput):
 
     def with_frequency(self, frequency_Hz: float) -> "SinePeriodic":
         return SinePeriodic(self.amplitude_V, float(frequency_Hz), self.offset_V)
+
+    def waveform_key(self):
+        return ("sine", float(self.amplitude_V), float(self.offset_V))
 
     def u2_half_periodic(self, samples: int = 64) -> bool:
         return self.offset_V == 0.0 or self.amplitude_V == 0.0

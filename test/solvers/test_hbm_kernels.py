@@ -97,6 +97,34 @@ def test_batched_solves_and_stability_are_the_same_on_both_paths(a2, path):
 
 
 @needs_numba
+def test_one_batch_of_mixed_waveforms_has_each_items_own_multipliers(a2, path):
+    """The batched Floquet step evaluates a waveform once for all items that share it
+    (``waveform_key``): items with other amplitudes, offsets or sampled waveforms must still get
+    their own input, i.e. the multipliers each item gets alone."""
+    from dea_ros.solvers.harmonic_balance import attach_floquet
+    from dea_ros.solvers.inputs import SampledPeriodic
+
+    assert SinePeriodic(2500.0, 3.0).waveform_key() == SinePeriodic(2500.0, 7.0).waveform_key()
+    assert SinePeriodic(2500.0, 3.0).waveform_key() != SinePeriodic(2000.0, 3.0).waveform_key()
+    assert SinePeriodic(2500.0, 3.0).waveform_key() != SinePeriodic(2500.0, 3.0, 300.0).waveform_key()
+    theta = 2 * np.pi * np.arange(16) / 16
+    inputs = [SinePeriodic(2500.0, 3.0, 400.0), SinePeriodic(1500.0, 3.0, 400.0), SinePeriodic(2500.0, 9.0, 400.0),
+              SampledPeriodic(1800.0 + 500.0 * np.sin(theta) + 200.0 * np.cos(2 * theta), 3.0),
+              SampledPeriodic(1800.0 + 500.0 * np.sin(theta), 3.0), SinePeriodic(2500.0, 0.2, 400.0)]
+    path(True)
+    batch = solve_native_batch(a2, inputs, 6, stability=True)
+    for sol in batch:
+        alone = attach_floquet(model_setup(a2).model, solve_native_batch(a2, [sol.periodic_input], 6)[0],
+                               scale=model_setup(a2).scale)
+        np.testing.assert_allclose(sol.multipliers, alone.multipliers, rtol=0, atol=1e-12)
+    # and the same as the numpy path
+    path(False)
+    ref = solve_native_batch(a2, inputs, 6, stability=True)
+    for r, s in zip(ref, batch):
+        np.testing.assert_allclose(s.multipliers, r.multipliers, rtol=0, atol=1e-10)
+
+
+@needs_numba
 def test_coarse_batch_multipliers_are_the_same_on_both_paths(a2, path):
     sols = solve_native_batch(a2, [SinePeriodic(2500.0, f) for f in (0.3, 2.0, 9.4, 14.0)], 6)
     states = np.stack([s.state for s in sols])
