@@ -58,6 +58,7 @@ from .harmonic_balance import (
     periodic_interpolation_matrix,
     response_layout,
     solve_native,
+    truncation_ratios,
 )
 from .inputs import PeriodicInput
 from .realised import SETTLE_PERIODS, WINDOW_PERIODS, realised_response
@@ -292,9 +293,9 @@ class SweepResult:
 
     @property
     def max_truncation_ratio(self) -> float:
-        vals = [p.truncation_ratio for b in (self.branches or []) for p in b.points if p.solution is not None]
-        vals += [p.truncation_ratio for p in self.points if p.solution is not None]
-        return float(max(vals)) if vals else float("nan")
+        sols = [p.solution for b in (self.branches or []) for p in b.points if p.solution is not None]
+        sols += [p.solution for p in self.points if p.solution is not None]
+        return float(np.max(truncation_ratios(sols))) if sols else float("nan")
 
     def band_summary(self) -> list:
         return [b.describe() for b in self.bands]
@@ -334,15 +335,16 @@ def _sweep_point(sol: PeriodicSolution, d0_m: float, iterations: int, wall_time_
                  stability: bool, branch: str = PRIMARY) -> SweepPoint:
     """A SweepPoint from a periodic solution (d_rms around d0_m, eq. 21)."""
     mu = sol.stability_multipliers
-    mu = np.abs(mu) if mu is not None else np.array([np.nan])
+    max_multiplier = float(np.abs(mu).max()) if mu is not None else float("nan")
+    d = sol.state[0]
     return SweepPoint(
         frequency_Hz=float(sol.frequency_Hz),
         d_rms_m=sol.displacement_rms(d0_m),
         mean_displacement_m=sol.mean_displacement_m,
-        peak_to_peak_m=float(np.ptp(sol.state[0])),
-        stable=bool(sol.stable) if stability else True,
-        stability=sol.stability,
-        max_multiplier=float(np.max(mu)),
+        peak_to_peak_m=float(d.max() - d.min()),
+        stable=bool(max_multiplier < 1.0) if stability else True,   # as PeriodicSolution.stable
+        stability=classify_stability(mu),
+        max_multiplier=max_multiplier,
         iterations=iterations,
         wall_time_s=wall_time_s,
         segment=segment,
@@ -604,7 +606,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
                 mu_grid[st[4]] = mus[i]
     else:
         mus = np.zeros((len(stations), 3))
-    counts = [_n_outside(mu) for mu in mus]
+    counts = np.count_nonzero(np.abs(mus) > 1.0, axis=1).tolist()   # multipliers outside, per station
     # ---- folds (turning points), located on tp = 0
     folds = []
     for k in tr["fold_steps"]:

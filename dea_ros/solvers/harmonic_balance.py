@@ -178,9 +178,7 @@ class PeriodicSolution:
         0.01 % RMS accuracy); a ratio near 1 means N is far too small and the
         solution may be spurious (a solution of the truncated equations only).
         """
-        amps = self.harmonic_amplitudes_m()[1:]
-        top = float(np.max(amps)) if amps.size else 0.0
-        return float(amps[-1] / top) if top > 0 else 0.0
+        return float(truncation_ratios([self])[0])
 
     def odd_harmonic_ratio(self) -> float:
         """RMS of the odd harmonics of the response frequency over that of all non-constant ones.
@@ -597,6 +595,25 @@ def _continue_up_in_frequency(setup, system, periodic_input, divisor, m, f, tol,
     return z, iters, res
 
 
+def truncation_ratios(solutions) -> np.ndarray:
+    """:attr:`PeriodicSolution.truncation_ratio` of many solutions (one stacked FFT per point count).
+
+    Amplitude of the highest retained harmonic of d over the largest non-constant one (0 when d is
+    constant)."""
+    sols = list(solutions)
+    out = np.zeros(len(sols))
+    by_m = {}
+    for i, sol in enumerate(sols):
+        by_m.setdefault(sol.n_points, []).append(i)
+    for m, idx in by_m.items():
+        if m < 3:
+            continue
+        amps = np.abs(np.fft.rfft(np.stack([sols[i].state[0] for i in idx]), axis=1)[:, 1:])
+        top = amps.max(axis=1)
+        out[idx] = np.divide(amps[:, -1], top, out=np.zeros(len(idx)), where=top > 0)
+    return out
+
+
 def resample_state(x: np.ndarray, m: int) -> np.ndarray:
     """Trigonometric resampling of (3, M_old) collocation values to m points."""
     x = np.asarray(x, float)
@@ -822,7 +839,8 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     ``states`` (B, 3, M) are collocation values over the response periods ``response_periods_s``
     (B,) of ``periodic_input`` seen with ``divisor``. Same 4th-order Magnus scheme as
     :func:`monodromy_matrix`, coarser by default (h rho(A) <= 1, at least 16 steps, rounded up
-    to a power of 2 so solutions share the quadrature points and are processed in stacks):
+    to one of 8 counts per octave, at most 12.5 % more, so solutions share the quadrature points
+    and the numpy path processes them in stacks):
     multipliers to ~1e-5, enough to detect where stability changes (the continuation then
     locates those points with :func:`floquet_multipliers`).
     """
@@ -849,7 +867,8 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
                 a_nodes[:, :, i, j] = rows[i][j] * (scale[j] / scale[i])
         rate = np.max(np.abs(np.linalg.eigvals(a_nodes[:, ::3])), axis=(1, 2))  # rho(A) along the orbit
     need = np.clip(np.ceil(rate * periods / h_rho), min_steps, 8192)
-    steps_of = (2 ** np.ceil(np.log2(need))).astype(int)
+    quantum = 2.0 ** np.maximum(np.floor(np.log2(need)) - 3, 0)       # 8 step counts per octave
+    steps_of = (np.ceil(need / quantum) * quantum).astype(int)
     if fast:
         mats = _compiled_monodromies(model, x_all, periods, steps_of, [periodic_input] * nb, [divisor] * nb,
                                      scale, 12)
@@ -886,8 +905,8 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     return out
 
 
-__all__ += ["newton_error", "resample_state", "monodromy_matrix", "linear_guess", "response_layout", "half_period_view",
-            "SYMMETRY_TOL"]
+__all__ += ["newton_error", "resample_state", "truncation_ratios", "monodromy_matrix", "linear_guess",
+            "response_layout", "half_period_view", "SYMMETRY_TOL"]
 
 
 def _linear_guess_batch(setup: ModelSetup, u2: np.ndarray, omega: np.ndarray, m: int) -> np.ndarray:

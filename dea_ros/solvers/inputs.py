@@ -68,13 +68,17 @@ def check_recorded_voltage(voltage_V, name: str = "voltage_V") -> np.ndarray:
 
 def check_voltage(value, name: str = "voltage_V") -> np.ndarray:
     """Reject NaN/inf voltages with a message naming the argument."""
-    arr = np.asarray(value, dtype=float)
-    peak = float(np.max(np.abs(arr), initial=0.0))   # one reduction: NaN and inf propagate into it
+    if isinstance(value, (int, float)):   # a plain number (np.float64 too): float arithmetic, no reduction
+        arr = None
+        peak = abs(float(value))
+    else:
+        arr = np.asarray(value, dtype=float)
+        peak = float(np.max(np.abs(arr), initial=0.0))   # one reduction: NaN and inf propagate into it
     if not math.isfinite(peak):
         raise ValueError(f"{name}: must be finite (got NaN or inf)")
     if peak > 1e6:
         raise ValueError(f"{name}: {peak:.3g} V is beyond any DEA amplifier; volts expected (2.5 kV -> 2500)")
-    return arr
+    return np.asarray(value, dtype=float) if arr is None else arr
 
 
 class VoltageSignal:
@@ -106,7 +110,8 @@ class StepVoltage(VoltageSignal):
     initial_V: float = 0.0
 
     def __post_init__(self):
-        check_voltage([self.final_V, self.initial_V])
+        check_voltage(self.final_V, "final_V")
+        check_voltage(self.initial_V, "initial_V")
 
     @property
     def breakpoints(self):
@@ -126,7 +131,8 @@ class SineVoltage(VoltageSignal):
     phase_rad: float = 0.0
 
     def __post_init__(self):
-        check_voltage([self.amplitude_V, self.offset_V])
+        check_voltage(self.amplitude_V, "amplitude_V")
+        check_voltage(self.offset_V, "offset_V")
         if not (np.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
             raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
 
@@ -228,7 +234,8 @@ class SinePeriodic(PeriodicInput):
     offset_V: float = 0.0
 
     def __post_init__(self):
-        check_voltage([self.amplitude_V, self.offset_V])
+        check_voltage(self.amplitude_V, "amplitude_V")
+        check_voltage(self.offset_V, "offset_V")
         if not (math.isfinite(self.frequency_Hz) and self.frequency_Hz > 0):
             raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
 
