@@ -582,6 +582,42 @@ def _rms_slope(tracer: _Tracer, z, tz, d0) -> float:
     return tracer.setup.scale[0] * float(dev @ tz[:m]) / (m * rms) if rms > 0 else 0.0
 
 
+def _crossing_distance(mu, index: int) -> float:
+    """The modulus at ``index`` of the multipliers sorted by decreasing modulus, minus 1: it changes
+    sign where the number of multipliers outside the unit circle passes index <-> index + 1."""
+    return float(np.sort(np.abs(mu))[::-1][index]) - 1.0
+
+
+def _illinois(fn, a: float, b: float, fa: float, fb: float, f_tol: float, width: float, max_evals: int):
+    """Root of a continuous fn on [a, b] (fa, fb of opposite signs) by the Illinois (bracketed secant)
+    method. ``fn(t)`` returns (value, payload). Stops after ``max_evals`` evaluations, at |value| <=
+    ``f_tol`` or once the bracket is narrower than ``width``. Returns (t, value, payload) of the
+    evaluated point with the smallest |value| (None when nothing was evaluated)."""
+    best = None
+    side = 0
+    for _ in range(max_evals):
+        c = b - fb * (b - a) / (fb - fa) if fb != fa else 0.5 * (a + b)
+        c = min(max(c, a + 1e-12), b - 1e-12)
+        fc, payload = fn(c)
+        if best is None or abs(fc) < abs(best[1]):
+            best = (c, fc, payload)
+        if abs(fc) <= f_tol:
+            break
+        if (fc > 0) == (fa > 0):   # the root is in [c, b]
+            a, fa = c, fc
+            if side == -1:
+                fb *= 0.5
+            side = -1
+        else:
+            b, fb = c, fc
+            if side == 1:
+                fa *= 0.5
+            side = 1
+        if b - a < width:
+            break
+    return best
+
+
 def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_ends: bool = False) -> dict:
     """Multipliers at every station, bifurcations (located), local maxima of d_rms, stable intervals."""
     setup = tracer.setup
@@ -607,29 +643,26 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     else:
         mus = np.zeros((len(stations), 3))
     counts = np.count_nonzero(np.abs(mus) > 1.0, axis=1).tolist()   # multipliers outside, per station
-    # ---- folds (turning points), located on tp = 0
+    # ---- folds (turning points), located on tp = 0 (tp of the unit tangent, continuous along the branch)
     folds = []
     for k in tr["fold_steps"]:
-        lo, hi = 0.0, 1.0
         s_lo = np.sign(tr["tp"][k])
+
+        def tangent_p(tau, k=k):
+            zm, pm = tracer.at(tr, k, tau)
+            return tracer.tangent(zm, pm, tr["tz"][k], tr["tp"][k])[1], (zm, pm)
         try:
-            for _ in range(11):
-                mid = 0.5 * (lo + hi)
-                zm, pm = tracer.at(tr, k, mid)
-                _tz, tpm = tracer.tangent(zm, pm, tr["tz"][k], tr["tp"][k])
-                if np.sign(tpm) == s_lo:
-                    lo = mid
-                else:
-                    hi = mid
-            zf, pf = tracer.at(tr, k, 0.5 * (lo + hi))
+            tau, _tp, (zf, pf) = _illinois(tangent_p, 0.0, 1.0, float(tr["tp"][k]), float(tr["tp"][k + 1]),
+                                           f_tol=1e-10, width=2.0 ** -11, max_evals=11)
         except (HarmonicBalanceError, np.linalg.LinAlgError):
-            zf, pf = zs[k], float(ps[k])
-        folds.append({"k": k, "tau": 0.5 * (lo + hi), "z": zf, "p": pf,
+            tau, zf, pf = 0.5, zs[k], float(ps[k])
+        folds.append({"k": k, "tau": tau, "z": zf, "p": pf,
                       "direction": "forward->backward" if s_lo > 0 else "backward->forward"})
     if ignore_ends:  # the pitchfork turning points where a period-doubled branch starts / ends
         ends = [float(ps[0])] + ([float(ps[-1])] if tr["stopped"] else [])
         folds = [f for f in folds if min(abs(f["p"] - e) for e in ends) > END_TOL]
-    # ---- stability changes, located by bisection along the branch
+    # ---- stability changes, located along the branch where the multiplier that crosses the unit
+    # circle has modulus 1 (Illinois on its modulus - 1; the stations' counts bracket it)
     events = []
     d_of = lambda z: _rms_and_deviation(tracer, z, d0)[0]  # noqa: E731
     if stability:
@@ -640,16 +673,16 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
             k = ka
             lo, hi = ta, (tb if kb == ka else 1.0)
             c_lo = counts[i]
+            index = min(c_lo, counts[i + 1])
+
+            def crossing(tau, k=k, index=index):
+                zm, pm = tracer.at(tr, k, tau)
+                mu = tracer.multipliers(zm, pm)
+                return _crossing_distance(mu, index), (zm, pm, mu)
             try:
-                for _ in range(11):
-                    mid = 0.5 * (lo + hi)
-                    zm, pm = tracer.at(tr, k, mid)
-                    if _n_outside(tracer.multipliers(zm, pm)) == c_lo:
-                        lo = mid
-                    else:
-                        hi = mid
-                zc, pc = tracer.at(tr, k, 0.5 * (lo + hi))
-                mu_c = tracer.multipliers(zc, pc)
+                tau, _f, (zc, pc, mu_c) = _illinois(
+                    crossing, lo, hi, _crossing_distance(mus[i], index), _crossing_distance(mus[i + 1], index),
+                    f_tol=1e-10, width=(hi - lo) * 2.0 ** -11, max_evals=12)
             except (HarmonicBalanceError, np.linalg.LinAlgError):
                 continue
             kind = _event_kind(mu_c)
@@ -661,7 +694,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
                     fold["event"] = True
             if ignore_ends and min(abs(pc - e) for e in ends) <= END_TOL:
                 continue
-            events.append({"k": k, "tau": 0.5 * (lo + hi), "kind": kind, "z": zc, "p": pc,
+            events.append({"k": k, "tau": tau, "kind": kind, "z": zc, "p": pc,
                            "mu": _critical(mu_c), "stable_before": c_lo == 0, "fold": fold,
                            "count_before": c_lo, "count_after": counts[i + 1]})
     # ---- local maxima of d_rms along the arclength: d(d_rms)/ds = grad . t changes sign
@@ -674,30 +707,16 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     for k in range(nsteps - 1):
         if not (slopes[k] > 0.0 >= slopes[k + 1]):
             continue
-        a, b, fa, fb = 0.0, 1.0, slopes[k], slopes[k + 1]
-        best = None
+
+        def slope_at(tau, k=k):
+            zc, pc = tracer.at(tr, k, tau)
+            tzc, _tpc = tracer.tangent(zc, pc, tr["tz"][k], tr["tp"][k])
+            return slope(zc, tzc), (zc, pc)
         try:
-            for _ in range(30):  # Illinois (bracketed secant)
-                c = b - fb * (b - a) / (fb - fa) if fb != fa else 0.5 * (a + b)
-                c = min(max(c, a + 1e-12), b - 1e-12)
-                zc, pc = tracer.at(tr, k, c)
-                tzc, _tpc = tracer.tangent(zc, pc, tr["tz"][k], tr["tp"][k])
-                fc = slope(zc, tzc)
-                best = (zc, pc)
-                if abs(fc) < 1e-12 * max(abs(slopes[k]), 1e-30) or abs(b - a) < 1e-9:
-                    break
-                if fc > 0:
-                    a, fa = c, fc
-                    fb *= 0.5 if fb < 0 else 1.0
-                else:
-                    b, fb = c, fc
-                    fa *= 0.5 if fa > 0 else 1.0
+            _tau, _f, (zc, pc) = _illinois(slope_at, 0.0, 1.0, slopes[k], slopes[k + 1],
+                                           f_tol=1e-12 * max(abs(slopes[k]), 1e-30), width=1e-9, max_evals=30)
         except (HarmonicBalanceError, np.linalg.LinAlgError):
-            best = None
-        if best is None:
             zc, pc = zs[k], float(ps[k])
-        else:
-            zc, pc = best
         stable_here = True
         if stability:
             stable_here = _n_outside(tracer.multipliers(zc, pc)) == 0

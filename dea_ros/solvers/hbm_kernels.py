@@ -767,9 +767,10 @@ def monodromy(state, cos_phases, sin_phases, u2, h, constants, scale, order):
     """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
 
     ``cos_phases``, ``sin_phases`` (2S,) are the cosines and sines of the phases of the two Gauss
-    points of the S steps (first points of all steps, then second points), ``u2`` the input squared there, ``h`` the step (s), ``order`` the
-    Taylor order of the matrix exponential (<= 15; that of ``_expm_small`` / ``_expm3``). The
-    state is evaluated by its trigonometric interpolant through the M collocation values.
+    points of the S steps (first points of all steps, then second points), ``u2`` the input squared
+    there, ``h`` the step (s), ``order`` the Taylor order of the matrix exponential (<= 15; that of
+    ``_expm_small`` / ``_expm3``). The state is evaluated by its trigonometric interpolant through
+    the M collocation values.
     """
     m = state.shape[1]
     nh = (m - 1) // 2
