@@ -465,15 +465,26 @@ class _Tracer:
     def multipliers(self, z, p) -> np.ndarray:
         return floquet_multipliers(self.setup.model, self.solution(z, p), scale=self.setup.scale)
 
-    def trace(self, z, p, tz, tp, p_lo, p_hi, max_steps: int, stop=None, h0=None) -> dict:
+    def odd_flipped(self, z_prev, z_new, odd_projector) -> bool:
+        """The odd-harmonic part (``odd_projector`` per state) of the solution turned back from z_prev
+        to z_new: a period-doubled branch came back through the T/2 orbit (not the start's noise)."""
+        a = (z_prev.reshape(3, self.m) @ odd_projector.T).reshape(-1)
+        b = (z_new.reshape(3, self.m) @ odd_projector.T).reshape(-1)
+        na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+        return na > 1e-6 * math.sqrt(self.n) and float(a @ b) < -0.5 * na * nb
+
+    def trace(self, z, p, tz, tp, p_lo, p_hi, max_steps: int, odd_projector=None, h0=None) -> dict:
         """Follow the branch from (z, p) along (tz, tp) until it leaves [p_lo, p_hi] moving outwards,
-        ``stop(z_prev, z_new)`` says so, or ``max_steps``. Grid frequencies crossed are solved."""
+        its odd-harmonic part turns back (when ``odd_projector`` is given: :meth:`odd_flipped`), or
+        ``max_steps``. Grid frequencies crossed are solved."""
+        h = 0.5 * self.h_max if h0 is None else h0
+        if hbm_kernels.enabled():
+            return self._compiled_trace(z, p, tz, tp, p_lo, p_hi, max_steps, odd_projector, h)
         zs, ps, tzs, tps, hs, its = [z], [p], [tz], [tp], [], []
         grid = []     # (g, z, p, iterations, segment, step k, fraction)
         fold_steps = []
         segment = 0
         segs = [0]
-        h = 0.5 * self.h_max if h0 is None else h0
         max_turn_cos = math.cos(math.radians(10.0))
         steps = 0
         stopped = False
@@ -519,7 +530,7 @@ class _Tracer:
             tzs.append(tz_new)
             tps.append(tp_new)
             segs.append(segment)
-            if stop is not None and stop(z, z_new):
+            if odd_projector is not None and self.odd_flipped(z, z_new, odd_projector):
                 stopped = True
                 z, p, tz, tp = z_new, p_new, tz_new, tp_new
                 break
@@ -530,6 +541,28 @@ class _Tracer:
         return {"z": np.array(zs), "p": np.array(ps), "tz": np.array(tzs), "tp": np.array(tps),
                 "h": np.array(hs), "segment": np.array(segs), "grid": grid, "fold_steps": fold_steps,
                 "steps": steps, "stopped": stopped}
+
+    def _compiled_trace(self, z, p, tz, tp, p_lo, p_hi, max_steps, odd_projector, h) -> dict:
+        """:meth:`trace` by the compiled loop (:func:`hbm_kernels.trace_branch`: the same steps)."""
+        sy = self.system
+        (status, p_end, steps, stopped, zs, ps, tzs, tps, hs, its, segs, fold_steps, g_idx, g_z, g_p, g_it, g_seg,
+         g_k, g_fr) = hbm_kernels.trace_branch(
+            np.array(z, dtype=float), float(p), np.array(tz, dtype=float), float(tp), float(p_lo), float(p_hi),
+            int(max_steps), float(h), float(self.h_max), np.asarray(self.p_grid, dtype=float), self.u2,
+            sy.constants, sy.scale, sy.rate_ref, sy.d_theta, self.wz, float(self.tol),
+            np.zeros((1, 1)) if odd_projector is None else np.ascontiguousarray(odd_projector, dtype=float),
+            odd_projector is not None)
+        if status == hbm_kernels.TRACE_STEP_UNDERFLOW:
+            raise ContinuationError(f"continuation step underflow near f = {self.excitation_Hz(p_end):.6g} Hz")
+        if status == hbm_kernels.TRACE_MAX_STEPS:
+            raise ContinuationError(f"more than {max_steps} branch steps; the branch may be closed")
+        if status == hbm_kernels.TRACE_SINGULAR_TANGENT:
+            raise np.linalg.LinAlgError("Singular matrix")
+        grid = [(g, g_z[j], pg, it, seg, k, fr) for j, (g, pg, it, seg, k, fr) in
+                enumerate(zip(g_idx.tolist(), g_p.tolist(), g_it.tolist(), g_seg.tolist(), g_k.tolist(),
+                              g_fr.tolist()))]
+        return {"z": zs, "p": ps, "tz": tzs, "tp": tps, "h": hs, "segment": segs, "grid": grid,
+                "fold_steps": fold_steps.tolist(), "steps": int(steps), "stopped": bool(stopped)}
 
     def at(self, tr: dict, k: int, tau: float):
         """The branch point a fraction tau of the way from step k to k+1 (corrector from step k)."""
@@ -818,10 +851,6 @@ def _period_doubled_start(setup, half: _Tracer, full: _Tracer, z_half, p_half):
     return z_full, p_full, phi
 
 
-def _odd_part(full: _Tracer, z, podd):
-    return (z.reshape(3, full.m) @ podd.T).reshape(-1)
-
-
 # ----------------------------------------------------------------------------- sweep
 def stability_segments(branch: "Branch", bifurcations) -> tuple:
     """((f, d_rms) stable, (f, d_rms) unstable) polylines of a branch's curve, NaN between pieces, split
@@ -944,15 +973,9 @@ def frequency_sweep(
                 norm = math.sqrt(full.inner(phi, 0.0, phi, 0.0))
                 tz1, tp1 = phi / norm, 0.0
 
-                def odd_flipped(z_prev, z_new):
-                    a, b = _odd_part(full, z_prev, podd), _odd_part(full, z_new, podd)
-                    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
-                    # back through the T/2 orbit: the odd harmonics change sign (not the start's noise)
-                    return na > 1e-6 * math.sqrt(full.n) and float(a @ b) < -0.5 * na * nb
-
                 h_first = min(0.02, h_max)
                 trf = full.trace(z1, p1, tz1, tp1, p_lo=p_grid_full[0], p_hi=p_grid_full[-1],
-                                 max_steps=max_branch_steps, stop=odd_flipped, h0=h_first)
+                                 max_steps=max_branch_steps, odd_projector=podd, h0=h_first)
             except (ContinuationError, HarmonicBalanceError, np.linalg.LinAlgError):
                 continue
             steps_total += trf["steps"]

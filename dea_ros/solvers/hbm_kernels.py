@@ -43,7 +43,8 @@ __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
     "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
-    "monodromy", "monodromy_batch", "GAUSS_NODES",
+    "monodromy", "monodromy_batch", "GAUSS_NODES", "trace_branch", "TRACE_STEP_UNDERFLOW", "TRACE_MAX_STEPS",
+    "TRACE_SINGULAR_TANGENT",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
@@ -539,6 +540,218 @@ def bordered_tangent(z, p, tz, tp, wz, u2, constants, scale, rate_ref, dmat):
     return t, ok
 
 
+#: Outcome codes of :func:`trace_branch` (0: left the range, stopped or ran out of steps normally).
+TRACE_STEP_UNDERFLOW = 1
+TRACE_MAX_STEPS = 2
+TRACE_SINGULAR_TANGENT = 3
+
+
+@_jit
+def _sign(x):
+    return (x > 0.0) - (x < 0.0)
+
+
+@_jit
+def _inner(wz, a_z, a_p, b_z, b_p):
+    """The arclength inner product |dz|^2 wz + dp^2 of the continuation."""
+    acc = 0.0
+    for i in range(a_z.shape[0]):
+        acc += a_z[i] * b_z[i]
+    return wz * acc + a_p * b_p
+
+
+@_jit
+def _odd_norm_and_dot(z_a, z_b, podd, m):
+    """|odd(a)|, |odd(b)|, odd(a).odd(b) of the odd-harmonic parts (projector podd per state) of z_a, z_b."""
+    na = 0.0
+    nb = 0.0
+    dot = 0.0
+    for i in range(3):
+        for k in range(m):
+            pa = 0.0
+            pb = 0.0
+            for j in range(m):
+                pa += z_a[i * m + j] * podd[k, j]
+                pb += z_b[i * m + j] * podd[k, j]
+            na += pa * pa
+            nb += pb * pb
+            dot += pa * pb
+    return math.sqrt(na), math.sqrt(nb), dot
+
+
+@_jit
+def _grow_rows(a, rows):
+    out = np.empty((rows, a.shape[1]))
+    out[:a.shape[0]] = a
+    return out
+
+
+@_jit
+def _grow(a, size):
+    out = np.empty(size, dtype=a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@_jit
+def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, constants, scale, rate_ref, dmat,
+                 wz, tol, podd, stop_on_odd_flip):
+    """The pseudo-arclength loop of ``continuation._Tracer.trace`` (same steps, same decisions), compiled.
+
+    From (z, p) along the unit tangent (tz, tp), p = ln omega: predictor h, corrector
+    (:func:`bordered_corrector`, 12 iterations), unit tangent where the corrector built its last
+    matrix (:func:`bordered_tangent`); a step that fails halves h, one that turns the tangent by more
+    than 10 degrees too; h grows by 1.5 / 1.0 / 0.6 after <= 3 / <= 5 / more iterations, up to
+    h_max. Grid values ``p_grid`` crossed by a step are solved by :func:`newton` (30 iterations) from
+    the linear interpolation. Stops when the branch leaves [p_lo, p_hi] moving outwards, after
+    ``max_steps``, or (``stop_on_odd_flip``) when the odd-harmonic part (projector ``podd``) turns
+    back (the period-doubled branch returned to the T/2 orbit).
+
+    Returns (status, p_at_failure, steps, stopped, zs, ps, tzs, tps, hs, its, segs, fold_steps,
+    grid_index, grid_z, grid_p, grid_iterations, grid_segment, grid_step, grid_fraction); status
+    0 or one of the TRACE_* codes.
+    """
+    n = z.shape[0]
+    m = u2.shape[0]
+    cap = 256
+    zs = np.empty((cap, n))
+    tzs = np.empty((cap, n))
+    ps = np.empty(cap)
+    tps = np.empty(cap)
+    hs = np.empty(cap)
+    its = np.empty(cap, dtype=np.int64)
+    segs = np.empty(cap, dtype=np.int64)
+    folds = np.empty(cap, dtype=np.int64)
+    gcap = 64
+    g_idx = np.empty(gcap, dtype=np.int64)
+    g_z = np.empty((gcap, n))
+    g_p = np.empty(gcap)
+    g_it = np.empty(gcap, dtype=np.int64)
+    g_seg = np.empty(gcap, dtype=np.int64)
+    g_k = np.empty(gcap, dtype=np.int64)
+    g_fr = np.empty(gcap)
+    count = 1
+    n_folds = 0
+    n_grid = 0
+    zs[0] = z
+    tzs[0] = tz
+    ps[0] = p
+    tps[0] = tp
+    segs[0] = 0
+    z = z.copy()
+    tz = tz.copy()
+    z_pred = np.empty(n)
+    seed = np.empty(n)
+    segment = 0
+    h = h0
+    max_turn_cos = math.cos(math.radians(10.0))
+    steps = 0
+    stopped = False
+    odd_floor = 1e-6 * math.sqrt(n)
+    n_p = p_grid.shape[0]
+    while True:
+        if steps >= max_steps:
+            return (TRACE_MAX_STEPS, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
+                    hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid],
+                    g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+        if (p >= p_hi and tp > 0) or (p <= p_lo and tp < 0):
+            break
+        steps += 1
+        for i in range(n):
+            z_pred[i] = z[i] + h * tz[i]
+        ok, z_new, p_new, iters, z_last, p_last = bordered_corrector(
+            z_pred, p + h * tp, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, 12)
+        if not ok:
+            h *= 0.5
+            if h < 1e-7:
+                return (TRACE_STEP_UNDERFLOW, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
+                        hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid],
+                        g_z[:n_grid], g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+            continue
+        t, t_ok = bordered_tangent(z_last, p_last, tz, tp, wz, u2, constants, scale, rate_ref, dmat)
+        if not t_ok:
+            return (TRACE_SINGULAR_TANGENT, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
+                    hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid],
+                    g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+        tz_new = t[:n]
+        tp_new = t[n]
+        norm = math.sqrt(_inner(wz, tz_new, tp_new, tz_new, tp_new))
+        tz_new = tz_new / norm
+        tp_new = tp_new / norm
+        if _inner(wz, tz, tp, tz_new, tp_new) < max_turn_cos and h > 1e-6:
+            h *= 0.5
+            continue
+        k = count - 1
+        if p_new != p:
+            lo = min(p, p_new)
+            hi = max(p, p_new)
+            for jj in range(n_p):
+                g = jj if p_new > p else n_p - 1 - jj
+                pg = p_grid[g]
+                inside = (lo < pg <= hi) if p_new > p else (lo <= pg < hi)
+                if not inside:
+                    continue
+                frac = (pg - p) / (p_new - p)
+                for i in range(n):
+                    seed[i] = z[i] + frac * (z_new[i] - z[i])
+                zg, it_g, _res, status = newton(seed, math.exp(pg), u2, constants, scale, rate_ref, dmat, tol, 30)
+                if status != 0:
+                    continue
+                if n_grid == gcap:
+                    gcap *= 2
+                    g_idx = _grow(g_idx, gcap)
+                    g_z = _grow_rows(g_z, gcap)
+                    g_p = _grow(g_p, gcap)
+                    g_it = _grow(g_it, gcap)
+                    g_seg = _grow(g_seg, gcap)
+                    g_k = _grow(g_k, gcap)
+                    g_fr = _grow(g_fr, gcap)
+                g_idx[n_grid] = g
+                g_z[n_grid] = zg
+                g_p[n_grid] = pg
+                g_it[n_grid] = it_g
+                g_seg[n_grid] = segment
+                g_k[n_grid] = k
+                g_fr[n_grid] = frac
+                n_grid += 1
+        if _sign(tp_new) != _sign(tp) and tp != 0.0:
+            if n_folds == folds.shape[0]:
+                folds = _grow(folds, 2 * n_folds)
+            folds[n_folds] = k
+            n_folds += 1
+            segment += 1
+        if count == cap:
+            cap *= 2
+            zs = _grow_rows(zs, cap)
+            tzs = _grow_rows(tzs, cap)
+            ps = _grow(ps, cap)
+            tps = _grow(tps, cap)
+            hs = _grow(hs, cap)
+            its = _grow(its, cap)
+            segs = _grow(segs, cap)
+        dz = z_new - z
+        hs[count - 1] = _inner(wz, tz, tp, dz, p_new - p)
+        its[count - 1] = iters
+        zs[count] = z_new
+        ps[count] = p_new
+        tzs[count] = tz_new
+        tps[count] = tp_new
+        segs[count] = segment
+        count += 1
+        flipped = False
+        if stop_on_odd_flip:
+            na, nb, dot = _odd_norm_and_dot(z, z_new, podd, m)
+            flipped = na > odd_floor and dot < -0.5 * na * nb
+        z, p, tz, tp = z_new, p_new, tz_new, tp_new
+        if flipped:
+            stopped = True
+            break
+        h = min(h * (1.5 if iters <= 3 else (1.0 if iters <= 5 else 0.6)), h_max)
+    return (0, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count], hs[:count - 1],
+            its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid], g_p[:n_grid],
+            g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+
+
 @_jit
 def linear_guess(x_eq, a, b3, u2, u2_mean, omega):
     """Periodic response (3, M) of x' = A (x - x_eq) + b (u2 - mean) with b = (0, 0, b3), by a DFT.
@@ -848,6 +1061,10 @@ def _self_check() -> None:
     bordered_corrector(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat, 1e-10, 2)
     bordered_tangent(z, math.log(10.0), z, 1.0, 0.1, u2, constants, scale, 60.0, dmat)
     structured_solve(z, 10.0, u2, constants, scale, 60.0, dmat, np.ones(3 * m))
+    t = np.zeros(3 * m)
+    for stop in (False, True):
+        trace_branch(z, math.log(10.0), t, 1.0, 0.0, math.log(10.5), 3, 0.01, 0.02, np.array([math.log(10.2)]), u2,
+                     constants, scale, 60.0, dmat, 1.0 / (3 * m), 1e-10, np.eye(m), stop)
     for n in (3, LAPACK_FROM + 1):   # both branches of the small dense solver
         _solve_into(np.eye(n), np.ones(n))
     state = (z.reshape(3, m) * scale[:, None])

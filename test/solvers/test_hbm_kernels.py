@@ -152,6 +152,43 @@ def test_sweep_with_bands_is_the_same_on_both_paths(a2, path):
     assert fast.resonance_peak()["frequency_Hz"] == pytest.approx(ref.resonance_peak()["frequency_Hz"], rel=1e-9)
 
 
+@pytest.mark.parametrize("compiled", PATHS)
+def test_a_branch_longer_than_max_branch_steps_is_an_error_on_both_paths(a2, path, compiled):
+    from dea_ros.solvers.continuation import ContinuationError
+    path(compiled)
+    with pytest.raises(ContinuationError, match="more than 5 branch steps"):
+        frequency_sweep(a2, SinePeriodic(2500.0, 0.1), np.linspace(0.1, 20.0, 20), n_harmonics=4,
+                        max_branch_steps=5)
+
+
+@needs_numba
+def test_compiled_branch_trace_takes_the_same_steps(a2, path):
+    """The compiled continuation loop against the Python one: same steps, grid points, folds, tangents."""
+    from dea_ros.solvers.continuation import _Tracer
+    from dea_ros.solvers.harmonic_balance import response_layout
+    setup = model_setup(a2)
+    inp = SinePeriodic(2500.0, 8.0)
+    divisor, m = response_layout(inp, 6, True)
+    p_grid = np.log(2 * np.pi * np.linspace(8.0, 12.0, 30) * divisor)
+    start = solve_native(a2, inp, 6)
+    traces = []
+    for compiled in (False, True):
+        path(compiled)
+        tracer = _Tracer(setup, inp, divisor, m, 1e-10, 0.05, p_grid)
+        z0 = tracer.system.to_z(start.state)
+        tz, tp = tracer.tangent(z0, p_grid[0], np.zeros(tracer.n), 1.0)
+        traces.append(tracer.trace(z0, p_grid[0], tz, tp, p_grid[0] - 1.0, p_grid[-1], 2000))
+    ref, fast = traces
+    assert fast["steps"] == ref["steps"] and fast["fold_steps"] == ref["fold_steps"] and len(ref["fold_steps"]) == 2
+    np.testing.assert_allclose(fast["p"], ref["p"], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast["z"], ref["z"], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(fast["tp"], ref["tp"], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(fast["h"], ref["h"], rtol=1e-8)
+    assert [g[0] for g in fast["grid"]] == [g[0] for g in ref["grid"]]
+    assert [g[4] for g in fast["grid"]] == [g[4] for g in ref["grid"]]
+    np.testing.assert_allclose([g[1] for g in fast["grid"]], [g[1] for g in ref["grid"]], rtol=0, atol=1e-9)
+
+
 @needs_numba
 def test_realised_integration_is_the_same_on_both_paths(a2, path):
     d0 = static_equilibrium(a2, 0.0).displacement_m
