@@ -599,22 +599,6 @@ def _event_kind(mu) -> str:
     return "period-doubling" if c.real < 0 else "branch point"
 
 
-def _rms_and_deviation(tracer: _Tracer, z, d0):
-    """(d_rms (eq. 21), d - d0 at the collocation points) of the scaled unknowns z."""
-    m = tracer.m
-    x0 = z[:m] * tracer.setup.scale[0]
-    ref = float(x0.sum()) / m if d0 is None else d0
-    dev = x0 - ref
-    return math.sqrt(float(dev @ dev) / m), dev
-
-
-def _rms_slope(tracer: _Tracer, z, tz, d0) -> float:
-    """d(d_rms)/ds along the tangent tz (the gradient of d_rms w.r.t. the scaled z, dotted with tz)."""
-    m = tracer.m
-    rms, dev = _rms_and_deviation(tracer, z, d0)
-    return tracer.setup.scale[0] * float(dev @ tz[:m]) / (m * rms) if rms > 0 else 0.0
-
-
 def _crossing_distance(mu, index: int) -> float:
     """The modulus at ``index`` of the multipliers sorted by decreasing modulus, minus 1: it changes
     sign where the number of multipliers outside the unit circle passes index <-> index + 1."""
@@ -651,6 +635,26 @@ def _illinois(fn, a: float, b: float, fa: float, fb: float, f_tol: float, width:
     return best
 
 
+def _rms_and_slopes(tracer: _Tracer, zs, tzs, d0) -> tuple:
+    """d_rms (eq. 21) of the scaled unknowns zs (rows) and, when the unit tangents tzs (rows) are
+    given, d(d_rms)/ds along them (the gradient of d_rms w.r.t. z dotted with tz; else None)."""
+    m = tracer.m
+    scale_d = tracer.setup.scale[0]
+    x0 = np.asarray(zs)[:, :m] * scale_d
+    ref = x0.sum(axis=1)[:, None] / m if d0 is None else d0
+    dev = x0 - ref
+    rms = np.sqrt(np.einsum("ij,ij->i", dev, dev) / m)
+    if tzs is None:
+        return rms, None
+    along = scale_d * np.einsum("ij,ij->i", dev, np.asarray(tzs)[:, :m])
+    return rms, np.divide(along, m * rms, out=np.zeros_like(rms), where=rms > 0)
+
+
+def _rms_of(tracer: _Tracer, z, d0) -> float:
+    """d_rms (eq. 21) of one solution (scaled unknowns z)."""
+    return float(_rms_and_slopes(tracer, z[None], None, d0)[0][0])
+
+
 def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_ends: bool = False) -> dict:
     """Multipliers at every station, bifurcations (located), local maxima of d_rms, stable intervals."""
     setup = tracer.setup
@@ -664,7 +668,8 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     mu_grid = [None] * len(tr["grid"])
     if stability:
         model = setup.model
-        states = np.stack([tracer.system.unscale(s[2]) for s in stations])
+        states = np.stack([s[2] for s in stations]).reshape(len(stations), 3, tracer.m) * \
+            tracer.system.scale[None, :, None]
         periods = np.array([2.0 * np.pi / math.exp(s[3]) for s in stations])
         # multipliers to ~1e-7 (h rho <= 0.5, >= 32 Magnus steps): the reported points and the
         # detection of stability changes alike
@@ -697,7 +702,6 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     # ---- stability changes, located along the branch where the multiplier that crosses the unit
     # circle has modulus 1 (Illinois on its modulus - 1; the stations' counts bracket it)
     events = []
-    d_of = lambda z: _rms_and_deviation(tracer, z, d0)[0]  # noqa: E731
     if stability:
         for i in range(len(stations) - 1):
             if counts[i] == counts[i + 1]:
@@ -733,10 +737,11 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
     # ---- local maxima of d_rms along the arclength: d(d_rms)/ds = grad . t changes sign
 
     def slope(z, tz):
-        return _rms_slope(tracer, z, tz, d0)
+        return float(_rms_and_slopes(tracer, z[None], tz[None], d0)[1][0])
 
     maxima = []
-    slopes = [slope(zs[k], tr["tz"][k]) for k in range(nsteps)]
+    curve_d, slopes = _rms_and_slopes(tracer, zs, tr["tz"], d0)
+    slopes = slopes.tolist()
     for k in range(nsteps - 1):
         if not (slopes[k] > 0.0 >= slopes[k + 1]):
             continue
@@ -753,8 +758,8 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         stable_here = True
         if stability:
             stable_here = _n_outside(tracer.multipliers(zc, pc)) == 0
-        maxima.append({"frequency_Hz": tracer.excitation_Hz(pc), "d_rms_m": d_of(zc), "stable": stable_here,
-                       "branch": name, "k": k})
+        maxima.append({"frequency_Hz": tracer.excitation_Hz(pc), "d_rms_m": _rms_of(tracer, zc, d0),
+                       "stable": stable_here, "branch": name, "k": k})
     # ---- stable intervals along the branch (arclength order), bounded by events and folds
     marks = sorted([(e["k"], e["tau"], "event", e) for e in events] +
                    [(f["k"], f["tau"], "fold", f) for f in folds if not f.get("event")],
@@ -778,7 +783,7 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
             for e_name, e_obj in ((edge_start, start_obj), (edge, obj)):
                 if e_name != "range":
                     maxima.append({"frequency_Hz": tracer.excitation_Hz(e_obj.get("p", ps[0])),
-                                   "d_rms_m": d_of(e_obj["z"]), "stable": True, "branch": name, "k": k,
+                                   "d_rms_m": _rms_of(tracer, e_obj["z"], d0), "stable": True, "branch": name, "k": k,
                                    "edge": e_name})
         if what == "event":
             stable_now = obj["count_after"] == 0
@@ -791,10 +796,10 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         intervals.append((min(f_start, f_end), max(f_start, f_end), seg, edge_start, end_edge))
         if edge_start != "range":
             maxima.append({"frequency_Hz": tracer.excitation_Hz(start_obj.get("p", ps[0])),
-                           "d_rms_m": d_of(start_obj["z"]), "stable": True, "branch": name, "k": -1,
+                           "d_rms_m": _rms_of(tracer, start_obj["z"], d0), "stable": True, "branch": name, "k": -1,
                            "edge": edge_start})
-    return {"stations": stations, "mus": mus, "mu_grid": mu_grid, "events": events, "folds": folds,
-            "maxima": maxima, "intervals": intervals}
+    return {"stations": stations, "mus": mus, "counts": counts, "mu_grid": mu_grid, "events": events,
+            "folds": folds, "maxima": maxima, "intervals": intervals, "curve_d": curve_d}
 
 
 def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, stability: bool,
@@ -806,9 +811,9 @@ def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, 
             sol.multipliers = an["mu_grid"][j]
         ref = sol.mean_displacement_m if d0 is None else d0
         points.append(_sweep_point(sol, ref, it, t_points, seg, stability, name))
-    folds = [Fold(tracer.excitation_Hz(f["p"]), _rms_and_deviation(tracer, f["z"], d0)[0], f["direction"], name)
+    folds = [Fold(tracer.excitation_Hz(f["p"]), _rms_of(tracer, f["z"], d0), f["direction"], name)
              for f in an["folds"]]
-    bifs = [Bifurcation(e["kind"], tracer.excitation_Hz(e["p"]), _rms_and_deviation(tracer, e["z"], d0)[0],
+    bifs = [Bifurcation(e["kind"], tracer.excitation_Hz(e["p"]), _rms_of(tracer, e["z"], d0),
                         name, e["mu"], e["stable_before"]) for e in an["events"] if e["fold"] is None]
     for f_raw, f in zip(an["folds"], folds):
         ev = [e for e in an["events"] if e["fold"] is f_raw]
@@ -816,12 +821,10 @@ def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, 
                                 bool(ev[0]["stable_before"]) if ev else False))
     bifs.sort(key=lambda b: b.frequency_Hz)
     curve_f = np.array([tracer.excitation_Hz(p) for p in tr["p"]])
-    curve_d = np.array([_rms_and_deviation(tracer, z, d0)[0] for z in tr["z"]])
-    step_st = [s for s in an["stations"] if s[4] is None]
-    counts = np.array([_n_outside(mu) for s, mu in zip(an["stations"], an["mus"]) if s[4] is None])
-    curve_stable = counts == 0 if stability else np.ones(len(step_st), bool)
+    counts = np.array([c for s, c in zip(an["stations"], an["counts"]) if s[4] is None])
+    curve_stable = counts == 0 if stability else np.ones(counts.size, bool)
     return Branch(name=name, kind=kind, period_divisor=tracer.divisor, points=points, folds=folds,
-                  bifurcations=bifs, curve_frequency_Hz=curve_f, curve_d_rms_m=curve_d,
+                  bifurcations=bifs, curve_frequency_Hz=curve_f, curve_d_rms_m=an["curve_d"],
                   curve_stable=curve_stable, maxima=an["maxima"], stable_intervals=an["intervals"],
                   steps=tr["steps"])
 
@@ -1017,9 +1020,12 @@ def _responses(params, periodic_input, freqs, branches, ref, d0_static, stabilit
                settle_periods, window_periods) -> list:
     """The realised response per requested frequency (module docstring)."""
     by_f: dict = {}
-    for br in branches:
-        for pt in br.points:
-            by_f.setdefault(int(np.argmin(np.abs(freqs - pt.frequency_Hz))), []).append(pt)
+    pts_all = [pt for br in branches for pt in br.points]
+    if pts_all:   # the nearest requested frequency of every point
+        f_pts = np.array([pt.frequency_Hz for pt in pts_all])
+        nearest = np.argmin(np.abs(freqs[None, :] - f_pts[:, None]), axis=1).tolist()
+        for pt, g in zip(pts_all, nearest):
+            by_f.setdefault(g, []).append(pt)
     out = []
     current = None       # (branch, segment) followed by the upward sweep
     last_value = None
