@@ -331,26 +331,27 @@ def _d0(params: MembraneParameters, choice: str, sol: PeriodicSolution) -> float
     raise ValueError(f"d0: 'static' (equilibrium at u = 0, the paper's eq. 21) or 'mean', got {choice!r}")
 
 
-def _sweep_point(sol: PeriodicSolution, d0_m: float, iterations: int, wall_time_s: float, segment: int,
-                 stability: bool, branch: str = PRIMARY) -> SweepPoint:
-    """A SweepPoint from a periodic solution (d_rms around d0_m, eq. 21)."""
-    mu = sol.stability_multipliers
-    max_multiplier = float(np.abs(mu).max()) if mu is not None else float("nan")
-    d = sol.state[0]
-    return SweepPoint(
-        frequency_Hz=float(sol.frequency_Hz),
-        d_rms_m=sol.displacement_rms(d0_m),
-        mean_displacement_m=sol.mean_displacement_m,
-        peak_to_peak_m=float(d.max() - d.min()),
-        stable=bool(max_multiplier < 1.0) if stability else True,   # as PeriodicSolution.stable
-        stability=classify_stability(mu),
-        max_multiplier=max_multiplier,
-        iterations=iterations,
-        wall_time_s=wall_time_s,
-        segment=segment,
-        solution=sol,
-        branch=branch,
-    )
+def _sweep_points(sols: list, d0_m, iterations, wall_time_s: float, segments, stability: bool,
+                  branch: str = PRIMARY) -> list:
+    """SweepPoints of periodic solutions with the same number of points: d_rms around d0_m (eq. 21;
+    None: around each one's mean), stability from each one's stability multipliers."""
+    if not sols:
+        return []
+    d = np.stack([sol.state[0] for sol in sols])
+    m = d.shape[1]
+    mean = d.sum(axis=1) / m
+    dev = d - (mean[:, None] if d0_m is None else d0_m)
+    d_rms = np.sqrt(np.einsum("ij,ij->i", dev, dev) / m).tolist()
+    peak_to_peak = (d.max(axis=1) - d.min(axis=1)).tolist()
+    mus = [sol.stability_multipliers for sol in sols]
+    max_mu = [float(np.abs(mu).max()) if mu is not None else float("nan") for mu in mus]
+    return [SweepPoint(
+        frequency_Hz=float(sol.frequency_Hz), d_rms_m=d_rms[i], mean_displacement_m=float(mean[i]),
+        peak_to_peak_m=peak_to_peak[i],
+        stable=bool(max_mu[i] < 1.0) if stability else True,   # as PeriodicSolution.stable
+        stability=classify_stability(mus[i]), max_multiplier=max_mu[i], iterations=int(iterations[i]),
+        wall_time_s=wall_time_s, segment=int(segments[i]), solution=sol, branch=branch,
+    ) for i, sol in enumerate(sols)]
 
 
 # ----------------------------------------------------------------------------------- tracer
@@ -804,13 +805,14 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
 
 def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, stability: bool,
                  t_points: float) -> Branch:
-    points = []
-    for j, (g, zg, pg, it, seg, _k, _fr) in enumerate(tr["grid"]):
+    sols = []
+    for j, (_g, zg, pg, it, _seg, _k, _fr) in enumerate(tr["grid"]):
         sol = tracer.solution(zg, pg, it)
         if stability:
             sol.multipliers = an["mu_grid"][j]
-        ref = sol.mean_displacement_m if d0 is None else d0
-        points.append(_sweep_point(sol, ref, it, t_points, seg, stability, name))
+        sols.append(sol)
+    points = _sweep_points(sols, d0, [g[3] for g in tr["grid"]], t_points, [g[4] for g in tr["grid"]], stability,
+                           name)
     folds = [Fold(tracer.excitation_Hz(f["p"]), _rms_of(tracer, f["z"], d0), f["direction"], name)
              for f in an["folds"]]
     bifs = [Bifurcation(e["kind"], tracer.excitation_Hz(e["p"]), _rms_of(tracer, e["z"], d0),
@@ -1189,7 +1191,7 @@ def sweep_independent(
             continue
         guess = sol.state if method != "integration" else None
         ref = d0_static if d0 == "static" else _d0(params, d0, sol)
-        pt = _sweep_point(sol, ref, sol.iterations, time.perf_counter() - t0, 0, stability)
+        pt = _sweep_points([sol], ref, [sol.iterations], time.perf_counter() - t0, [0], stability)[0]
         points.append(pt)
         if method == "integration":
             kind = "period-doubled" if (sol.odd_harmonic_ratio() > 1e-3 and inp.u2_half_periodic()) else "periodic"
