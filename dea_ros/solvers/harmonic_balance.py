@@ -625,15 +625,18 @@ _GAUSS = (0.5 - math.sqrt(3.0) / 6.0, 0.5 + math.sqrt(3.0) / 6.0)
 
 
 @functools.lru_cache(maxsize=256)
-def _gauss_phases(steps: int) -> np.ndarray:
-    """Phases 2 pi (k + g) / steps (rad) of the two Gauss points g of the Magnus steps k = 0..steps-1
-    over one response period: all first points, then all second points (read-only, shared)."""
+def _gauss_phases(steps: int) -> tuple:
+    """(phases, their cosines, their sines): the phases 2 pi (k + g) / steps (rad) of the two Gauss
+    points g of the Magnus steps k = 0..steps-1 over one response period, all first points, then
+    all second points (read-only arrays, shared)."""
     phase = np.arange(2 * steps, dtype=float)
     phase[:steps] += _GAUSS[0]
     phase[steps:] += _GAUSS[1] - steps
     phase *= 2.0 * np.pi / steps
-    phase.flags.writeable = False
-    return phase
+    out = (phase, np.cos(phase), np.sin(phase))
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def _squared_input_rows(inputs, divisors, phases_for) -> np.ndarray:
@@ -665,9 +668,9 @@ def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.nda
         key = (id(inp) if key is None else key, divisor, n_steps)
         at = offsets.get(key)
         if at is None:
-            phase = _gauss_phases(n_steps)
-            cos_parts.append(np.cos(phase))
-            sin_parts.append(np.sin(phase))
+            phase, cos_phase, sin_phase = _gauss_phases(n_steps)
+            cos_parts.append(cos_phase)
+            sin_parts.append(sin_phase)
             u2_parts.append(inp.at_phase(phase / divisor) ** 2)
             at = offsets[key] = offset
             offset += 2 * n_steps
@@ -743,9 +746,11 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
         steps = int(min(8192, max(48, math.ceil(rate * period / 0.5))))
     h = period / steps
     if fast:  # the same Gauss phases, 2 pi (k + g) / steps
-        phase = _gauss_phases(steps)
+        phase, cos_phase, sin_phase = _gauss_phases(steps)
         u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
-        return hbm_kernels.monodromy(state, np.cos(phase), np.sin(phase), u2, h, model.constants, scale, 14)
+        # (copies: the kernel is compiled for writeable arrays)
+        return hbm_kernels.monodromy(state, np.array(cos_phase), np.array(sin_phase), u2, h, model.constants, scale,
+                                     14)
     starts = np.arange(steps) * h
     t_gauss = np.concatenate([starts + _GAUSS[0] * h, starts + _GAUSS[1] * h])
     phase = omega_resp * t_gauss
