@@ -4,15 +4,18 @@ Branches. The periodic solutions are followed by pseudo-arclength continuation i
 y = (z, p), z the scaled collocation values and p = ln(omega) of the response, with
 predictor (tangent) / corrector (Newton on the collocation equations plus the arclength
 condition) steps of adaptive length, so turning points (folds, where the response jumps in
-an experiment) are passed, not stopped at. The primary branch ``"T/2"`` has the period of
+an experiment) are passed, not stopped at. With the compiled kernels the whole loop runs in
+one call (:func:`~dea_ros.solvers.hbm_kernels.trace_branch`, the same steps as the Python loop
+of the numpy path). The primary branch ``"T/2"`` has the period of
 u^2 (T/2 for a sine without offset, eq. 6). Every requested frequency a branch crosses is
 solved exactly (Newton at fixed frequency seeded from the two neighbouring branch points);
 inside a hysteresis band the same frequency appears once per branch segment.
 
 Stability and bifurcations. Floquet multipliers are computed at every branch step and grid
 point (stacked, :func:`~dea_ros.solvers.harmonic_balance.floquet_multipliers_batch`). Where
-the number of multipliers outside the unit circle changes, the bifurcation is located by
-bisection along the branch to ~1e-6 of the frequency and named by the critical multiplier:
+the number of multipliers outside the unit circle changes, the bifurcation is located along
+the branch where the crossing multiplier has modulus 1 (Illinois method on |mu| - 1, to 1e-10;
+folds likewise on the p-component of the tangent) and named by the critical multiplier:
 ``fold`` (+1, where the branch turns), ``period-doubling`` (-1) or ``torus`` (a complex pair,
 Neimark-Sacker).
 
@@ -54,6 +57,7 @@ from .harmonic_balance import (
     classify_stability,
     floquet_multipliers,
     floquet_multipliers_batch,
+    magnus_steps,
     model_setup,
     periodic_interpolation_matrix,
     response_layout,
@@ -81,6 +85,9 @@ END_TOL = 1e-4
 #: tangent turns by more than 10 degrees, and every requested frequency is a station of the
 #: stability analysis, so bands are not stepped over.
 H_MAX = 0.05
+
+#: Bifurcations are located with this many times the default Magnus steps (:func:`magnus_steps`).
+LOCATE_STEP_FACTOR = 4
 
 
 class ContinuationError(RuntimeError):
@@ -463,8 +470,12 @@ class _Tracer:
             method="native", iterations=iterations, residual=0.0, wall_time_s=0.0,
         )
 
-    def multipliers(self, z, p) -> np.ndarray:
-        return floquet_multipliers(self.setup.model, self.solution(z, p), scale=self.setup.scale)
+    def multipliers(self, z, p, steps: int | None = None) -> np.ndarray:
+        """Floquet multipliers at (z, p); ``steps`` Magnus steps (default: :func:`magnus_steps`)."""
+        return floquet_multipliers(self.setup.model, self.solution(z, p), steps=steps, scale=self.setup.scale)
+
+    def magnus_steps(self, z, p) -> int:
+        return magnus_steps(self.setup.model, self.solution(z, p), scale=self.setup.scale)
 
     def odd_flipped(self, z_prev, z_new, odd_projector) -> bool:
         """The odd-harmonic part (``odd_projector`` per state) of the solution turned back from z_prev
@@ -672,8 +683,8 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         states = np.stack([s[2] for s in stations]).reshape(len(stations), 3, tracer.m) * \
             tracer.system.scale[None, :, None]
         periods = np.array([2.0 * np.pi / math.exp(s[3]) for s in stations])
-        # multipliers to ~1e-7 (h rho <= 0.5, >= 32 Magnus steps): the reported points and the
-        # detection of stability changes alike
+        # h rho <= 0.5, >= 32 Magnus steps: |mu| to ~1e-5 next to the resonance (harmonic_balance.MAGNUS_H_RHO),
+        # for the reported points and to detect where the stability changes
         mus = floquet_multipliers_batch(model, states, periods, inp, tracer.divisor, scale=setup.scale,
                                         h_rho=0.5, min_steps=32)
         for i, st in enumerate(stations):
@@ -701,7 +712,9 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
         ends = [float(ps[0])] + ([float(ps[-1])] if tr["stopped"] else [])
         folds = [f for f in folds if min(abs(f["p"] - e) for e in ends) > END_TOL]
     # ---- stability changes, located along the branch where the multiplier that crosses the unit
-    # circle has modulus 1 (Illinois on its modulus - 1; the stations' counts bracket it)
+    # circle has modulus 1 (Illinois on its modulus - 1; the stations' counts bracket it). One step
+    # count for all evaluations of a location (|mu| continuous along it: the default rule jumps by
+    # one step here and there), LOCATE_STEP_FACTOR times the default (|mu| ~256x more accurate).
     events = []
     if stability:
         for i in range(len(stations) - 1):
@@ -713,14 +726,18 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
             c_lo = counts[i]
             index = min(c_lo, counts[i + 1])
 
-            def crossing(tau, k=k, index=index):
+            fixed_steps = []
+
+            def crossing(tau, k=k, index=index, fixed_steps=fixed_steps):
                 zm, pm = tracer.at(tr, k, tau)
-                mu = tracer.multipliers(zm, pm)
+                if not fixed_steps:
+                    fixed_steps.append(LOCATE_STEP_FACTOR * tracer.magnus_steps(zm, pm))
+                mu = tracer.multipliers(zm, pm, fixed_steps[0])
                 return _crossing_distance(mu, index), (zm, pm, mu)
             try:
                 tau, _f, (zc, pc, mu_c) = _illinois(
                     crossing, lo, hi, _crossing_distance(mus[i], index), _crossing_distance(mus[i + 1], index),
-                    f_tol=1e-10, width=(hi - lo) * 2.0 ** -11, max_evals=12)
+                    f_tol=1e-10, width=(hi - lo) * 1e-12, max_evals=12)
             except (HarmonicBalanceError, np.linalg.LinAlgError):
                 continue
             kind = _event_kind(mu_c)

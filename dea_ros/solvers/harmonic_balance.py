@@ -719,12 +719,34 @@ def _jacobian_stack(model: DEAModel, x: np.ndarray, u2: np.ndarray, scale: np.nd
     return a
 
 
+#: Default Magnus step rule of :func:`monodromy_matrix`: h rho(A) <= MAGNUS_H_RHO, from MAGNUS_MIN_STEPS to
+#: MAGNUS_MAX_STEPS steps per response period. Measured against single shooting (variational equations,
+#: DOP853 at rtol 1e-10): |mu| to ~5e-6 next to the A2 resonance (4.7e-6 at 9.584 Hz, 1.4e-7 at 18.4 Hz),
+#: the error falling as h^4.
+MAGNUS_H_RHO, MAGNUS_MIN_STEPS, MAGNUS_MAX_STEPS = 0.5, 48, 8192
+
+
+def magnus_steps(model: DEAModel, sol: PeriodicSolution, scale: np.ndarray | None = None) -> int:
+    """The default number of Magnus steps of :func:`monodromy_matrix` for ``sol`` (see MAGNUS_H_RHO)."""
+    m = sol.n_points
+    scale = np.ones(3) if scale is None else np.asarray(scale, dtype=float)
+    if hbm_kernels.enabled():
+        u2_nodes = sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
+        state = np.ascontiguousarray(sol.state, dtype=float)
+        rate = float(hbm_kernels.max_spectral_radius(state[None], u2_nodes[None], model.constants, scale, 1)[0])
+    else:
+        u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
+        a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
+        rate = float(np.max(np.abs(np.linalg.eigvals(a_nodes))))
+    return int(min(MAGNUS_MAX_STEPS, max(MAGNUS_MIN_STEPS, math.ceil(rate * sol.response_period_s / MAGNUS_H_RHO))))
+
+
 def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None = None,
                      scale: np.ndarray | None = None) -> np.ndarray:
     """Monodromy over the response period (4th-order Magnus), in scaled coordinates.
 
-    The multipliers are invariant under the scaling. Steps are chosen so that
-    h * rho(A) <= 0.5 (rho the spectral radius along the orbit), at least 48.
+    The multipliers are invariant under the scaling. ``steps`` defaults to :func:`magnus_steps`
+    (h rho(A) <= 0.5, rho the spectral radius along the orbit, at least 48).
     """
     m = sol.n_points
     period = sol.response_period_s
@@ -736,14 +758,7 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
         state = np.ascontiguousarray(sol.state, dtype=float)
         scale = np.asarray(scale, dtype=float)
     if steps is None:
-        if fast:
-            u2_nodes = sol.periodic_input.at_phase((2.0 * np.pi / (m * sol.period_divisor)) * np.arange(m)) ** 2
-            rate = float(hbm_kernels.max_spectral_radius(state[None], u2_nodes[None], model.constants, scale, 1)[0])
-        else:
-            u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
-            a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
-            rate = float(np.max(np.abs(np.linalg.eigvals(a_nodes))))
-        steps = int(min(8192, max(48, math.ceil(rate * period / 0.5))))
+        steps = magnus_steps(model, sol, scale)
     h = period / steps
     if fast:  # the same Gauss phases, 2 pi (k + g) / steps
         phase, cos_phase, sin_phase = _gauss_phases(steps)
@@ -816,7 +831,7 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     """:func:`attach_floquet` on many solutions, the eigenvalues in one stacked call (same results)."""
     if not sols:
         return
-    # step counts as monodromy_matrix chooses them (h rho <= 0.5, 48 to 8192), all solutions at once
+    # step counts as magnus_steps chooses them, all solutions at once
     scale = np.asarray(scale, dtype=float)
     states = np.stack([sol.state for sol in sols])
     m = states.shape[2]
@@ -825,7 +840,8 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     u2_nodes = _squared_input_rows(inputs, divisors, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
     periods = np.array([sol.response_period_s for sol in sols])
-    steps = np.minimum(8192, np.maximum(48, np.ceil(rates * periods / 0.5))).astype(np.int64)
+    steps = np.minimum(MAGNUS_MAX_STEPS, np.maximum(MAGNUS_MIN_STEPS, np.ceil(rates * periods / MAGNUS_H_RHO)))
+    steps = steps.astype(np.int64)
     mats = _compiled_monodromies(model, states, periods, steps, inputs, divisors, scale, 14)
     mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
@@ -910,8 +926,9 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     return out
 
 
-__all__ += ["newton_error", "resample_state", "truncation_ratios", "monodromy_matrix", "linear_guess",
-            "response_layout", "half_period_view", "SYMMETRY_TOL"]
+__all__ += ["newton_error", "resample_state", "truncation_ratios", "monodromy_matrix", "magnus_steps",
+            "MAGNUS_H_RHO", "MAGNUS_MIN_STEPS", "MAGNUS_MAX_STEPS", "linear_guess", "response_layout",
+            "half_period_view", "SYMMETRY_TOL"]
 
 
 def _linear_guess_batch(setup: ModelSetup, u2: np.ndarray, omega: np.ndarray, m: int) -> np.ndarray:

@@ -143,6 +143,36 @@ def test_an_impossible_frequency_range_is_an_invalid_design():
     assert evaluate_design(preset("A2"), spec, 1, [30.0])["failure"] == "invalid parameters"
 
 
+def test_a_large_study_is_drawn_as_a_binned_map_with_the_band_regions(tmp_path):
+    """Beyond SCATTER_MAX designs, markers would hide each other: bins coloured by their median and
+    hatched regions where >= 50 % of the designs have a band. Synthetic rows with known regions."""
+    from matplotlib.image import imread
+
+    from dea_ros.study.plots import SCATTER_MAX, _binned_panel, plot_maps
+
+    rng = np.random.default_rng(3)
+    n = SCATTER_MAX * 5
+    x, y = rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 1.0, n)
+    rows = [{"status": "ok" if i % 97 else "failed", "failure": "" if i % 97 else "no convergence",
+             "thickness_m": 3e-5 + 1e-5 * x[i], "mass_kg": 0.002 + 0.002 * y[i],
+             "peak_frequency_Hz": 8.0 + 4.0 * x[i], "stroke_m": 1e-4 * y[i],
+             "quasi_periodic_width_Hz": 0.01 if x[i] < 0.5 else 0.0, "period_doubled_width_Hz": 0.0,
+             "n_folds": 2 if y[i] > 0.7 else 0} for i in range(n)]
+    spec = spec_of()
+    (path,) = plot_maps(spec, rows, tmp_path)
+    assert imread(path).shape[0] > 400
+    # the regions: torus where x < 0.5, folds where y > 0.7, no period-doubling region
+    from matplotlib.figure import Figure
+    ax = Figure().subplots()
+    ok = np.array([r["status"] == "ok" for r in rows])
+    flags = [(x[ok] < 0.5, "r", "-", "//", "torus"), (np.zeros(ok.sum(), bool), "o", "-", "..", "pd"),
+             (y[ok] > 0.7, "k", "--", "..", "folds")]
+    handles = _binned_panel(ax.figure, ax, x[ok], y[ok], (8.0 + 4.0 * x)[ok], flags, "f")
+    assert [h.get_label() for h in handles] == ["torus in >= 50 % of designs", "folds in >= 50 % of designs"]
+    mesh = ax.collections[0].get_array().reshape(-1)
+    assert np.nanmin(mesh) > 8.0 and np.nanmax(mesh) < 12.0     # medians of 8 + 4 x
+
+
 # ----------------------------------------------------------------------------------- runs and resume
 @pytest.fixture(scope="module")
 def serial_run(tmp_path_factory):
