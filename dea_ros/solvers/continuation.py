@@ -557,23 +557,25 @@ class _Tracer:
     def _compiled_trace(self, z, p, tz, tp, p_lo, p_hi, max_steps, odd_projector, h) -> dict:
         """:meth:`trace` by the compiled loop (:func:`hbm_kernels.trace_branch`: the same steps)."""
         sy = self.system
-        (status, p_end, steps, stopped, zs, ps, tzs, tps, hs, its, segs, fold_steps, g_idx, g_z, g_p, g_it, g_seg,
-         g_k, g_fr) = hbm_kernels.trace_branch(
+        kern = hbm_kernels
+        status, p_end, steps, stopped, zs, tzs, table, fold_steps, g_z, g_table = kern.trace_branch(
             np.array(z, dtype=float), float(p), np.array(tz, dtype=float), float(tp), float(p_lo), float(p_hi),
             int(max_steps), float(h), float(self.h_max), np.asarray(self.p_grid, dtype=float), self.u2,
             sy.constants, sy.scale, sy.rate_ref, sy.d_theta, self.wz, float(self.tol),
             np.zeros((1, 1)) if odd_projector is None else np.ascontiguousarray(odd_projector, dtype=float),
             odd_projector is not None)
-        if status == hbm_kernels.TRACE_STEP_UNDERFLOW:
+        if status == kern.TRACE_STEP_UNDERFLOW:
             raise ContinuationError(f"continuation step underflow near f = {self.excitation_Hz(p_end):.6g} Hz")
-        if status == hbm_kernels.TRACE_MAX_STEPS:
+        if status == kern.TRACE_MAX_STEPS:
             raise ContinuationError(f"more than {max_steps} branch steps; the branch may be closed")
-        if status == hbm_kernels.TRACE_SINGULAR_TANGENT:
+        if status == kern.TRACE_SINGULAR_TANGENT:
             raise np.linalg.LinAlgError("Singular matrix")
-        grid = [(g, g_z[j], pg, it, seg, k, fr) for j, (g, pg, it, seg, k, fr) in
-                enumerate(zip(g_idx.tolist(), g_p.tolist(), g_it.tolist(), g_seg.tolist(), g_k.tolist(),
-                              g_fr.tolist()))]
-        return {"z": zs, "p": ps, "tz": tzs, "tp": tps, "h": hs, "segment": segs, "grid": grid,
+        columns = (kern.GRID_INDEX, kern.GRID_P, kern.GRID_ITERATIONS, kern.GRID_SEGMENT, kern.GRID_STEP,
+                   kern.GRID_FRACTION)
+        grid = [(int(row[0]), g_z[j], row[1], int(row[2]), int(row[3]), int(row[4]), row[5])
+                for j, row in enumerate(g_table[:, list(columns)].tolist())]
+        return {"z": zs, "p": table[:, kern.STEP_P], "tz": tzs, "tp": table[:, kern.STEP_TP],
+                "h": table[:-1, kern.STEP_H], "segment": table[:, kern.STEP_SEGMENT].astype(int), "grid": grid,
                 "fold_steps": fold_steps.tolist(), "steps": int(steps), "stopped": bool(stopped)}
 
     def at(self, tr: dict, k: int, tau: float):

@@ -581,16 +581,15 @@ def _odd_norm_and_dot(z_a, z_b, podd, m):
 
 @_jit
 def _grow_rows(a, rows):
+    """a (r, c) copied into a new (rows, c) array (rows >= r)."""
     out = np.empty((rows, a.shape[1]))
     out[:a.shape[0]] = a
     return out
 
 
-@_jit
-def _grow(a, size):
-    out = np.empty(size, dtype=a.dtype)
-    out[:a.shape[0]] = a
-    return out
+#: Columns of the per-step and per-grid-point tables of :func:`trace_branch`.
+STEP_P, STEP_TP, STEP_H, STEP_ITERATIONS, STEP_SEGMENT = range(5)
+GRID_INDEX, GRID_P, GRID_ITERATIONS, GRID_SEGMENT, GRID_STEP, GRID_FRACTION = range(6)
 
 
 @_jit
@@ -607,37 +606,29 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
     ``max_steps``, or (``stop_on_odd_flip``) when the odd-harmonic part (projector ``podd``) turns
     back (the period-doubled branch returned to the T/2 orbit).
 
-    Returns (status, p_at_failure, steps, stopped, zs, ps, tzs, tps, hs, its, segs, fold_steps,
-    grid_index, grid_z, grid_p, grid_iterations, grid_segment, grid_step, grid_fraction); status
-    0 or one of the TRACE_* codes.
+    Returns (status, p_at_end, steps, stopped, zs, tzs, step_table, fold_steps, grid_z, grid_table):
+    status 0 or one of the TRACE_* codes; zs, tzs (K + 1, n) the branch points and unit tangents;
+    step_table (K + 1, 5) with the columns STEP_* (h and iterations of the step from row k, in row k;
+    the last row's are unset); grid_z (G, n) and grid_table (G, 6, columns GRID_*) the solutions at
+    the crossed grid values.
     """
     n = z.shape[0]
     m = u2.shape[0]
     cap = 256
     zs = np.empty((cap, n))
     tzs = np.empty((cap, n))
-    ps = np.empty(cap)
-    tps = np.empty(cap)
-    hs = np.empty(cap)
-    its = np.empty(cap, dtype=np.int64)
-    segs = np.empty(cap, dtype=np.int64)
+    table = np.empty((cap, 5))
     folds = np.empty(cap, dtype=np.int64)
-    gcap = 64
-    g_idx = np.empty(gcap, dtype=np.int64)
-    g_z = np.empty((gcap, n))
-    g_p = np.empty(gcap)
-    g_it = np.empty(gcap, dtype=np.int64)
-    g_seg = np.empty(gcap, dtype=np.int64)
-    g_k = np.empty(gcap, dtype=np.int64)
-    g_fr = np.empty(gcap)
+    g_z = np.empty((64, n))
+    g_table = np.empty((64, 6))
     count = 1
     n_folds = 0
     n_grid = 0
     zs[0] = z
     tzs[0] = tz
-    ps[0] = p
-    tps[0] = tp
-    segs[0] = 0
+    table[0, STEP_P] = p
+    table[0, STEP_TP] = tp
+    table[0, STEP_SEGMENT] = 0
     z = z.copy()
     tz = tz.copy()
     z_pred = np.empty(n)
@@ -647,13 +638,13 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
     max_turn_cos = math.cos(math.radians(10.0))
     steps = 0
     stopped = False
+    status = 0
     odd_floor = 1e-6 * math.sqrt(n)
     n_p = p_grid.shape[0]
     while True:
         if steps >= max_steps:
-            return (TRACE_MAX_STEPS, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
-                    hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid],
-                    g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+            status = TRACE_MAX_STEPS
+            break
         if (p >= p_hi and tp > 0) or (p <= p_lo and tp < 0):
             break
         steps += 1
@@ -664,15 +655,13 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
         if not ok:
             h *= 0.5
             if h < 1e-7:
-                return (TRACE_STEP_UNDERFLOW, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
-                        hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid],
-                        g_z[:n_grid], g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+                status = TRACE_STEP_UNDERFLOW
+                break
             continue
         t, t_ok = bordered_tangent(z_last, p_last, tz, tp, wz, u2, constants, scale, rate_ref, dmat)
         if not t_ok:
-            return (TRACE_SINGULAR_TANGENT, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count],
-                    hs[:count - 1], its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid],
-                    g_p[:n_grid], g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+            status = TRACE_SINGULAR_TANGENT
+            break
         tz_new = t[:n]
         tp_new = t[n]
         norm = math.sqrt(_inner(wz, tz_new, tp_new, tz_new, tp_new))
@@ -694,49 +683,39 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
                 frac = (pg - p) / (p_new - p)
                 for i in range(n):
                     seed[i] = z[i] + frac * (z_new[i] - z[i])
-                zg, it_g, _res, status = newton(seed, math.exp(pg), u2, constants, scale, rate_ref, dmat, tol, 30)
-                if status != 0:
+                zg, it_g, _res, g_status = newton(seed, math.exp(pg), u2, constants, scale, rate_ref, dmat, tol, 30)
+                if g_status != 0:
                     continue
-                if n_grid == gcap:
-                    gcap *= 2
-                    g_idx = _grow(g_idx, gcap)
-                    g_z = _grow_rows(g_z, gcap)
-                    g_p = _grow(g_p, gcap)
-                    g_it = _grow(g_it, gcap)
-                    g_seg = _grow(g_seg, gcap)
-                    g_k = _grow(g_k, gcap)
-                    g_fr = _grow(g_fr, gcap)
-                g_idx[n_grid] = g
+                if n_grid == g_z.shape[0]:
+                    g_z = _grow_rows(g_z, 2 * n_grid)
+                    g_table = _grow_rows(g_table, 2 * n_grid)
                 g_z[n_grid] = zg
-                g_p[n_grid] = pg
-                g_it[n_grid] = it_g
-                g_seg[n_grid] = segment
-                g_k[n_grid] = k
-                g_fr[n_grid] = frac
+                g_table[n_grid, GRID_INDEX] = g
+                g_table[n_grid, GRID_P] = pg
+                g_table[n_grid, GRID_ITERATIONS] = it_g
+                g_table[n_grid, GRID_SEGMENT] = segment
+                g_table[n_grid, GRID_STEP] = k
+                g_table[n_grid, GRID_FRACTION] = frac
                 n_grid += 1
         if _sign(tp_new) != _sign(tp) and tp != 0.0:
             if n_folds == folds.shape[0]:
-                folds = _grow(folds, 2 * n_folds)
+                grown = np.empty(2 * n_folds, dtype=np.int64)
+                grown[:n_folds] = folds
+                folds = grown
             folds[n_folds] = k
             n_folds += 1
             segment += 1
-        if count == cap:
-            cap *= 2
-            zs = _grow_rows(zs, cap)
-            tzs = _grow_rows(tzs, cap)
-            ps = _grow(ps, cap)
-            tps = _grow(tps, cap)
-            hs = _grow(hs, cap)
-            its = _grow(its, cap)
-            segs = _grow(segs, cap)
-        dz = z_new - z
-        hs[count - 1] = _inner(wz, tz, tp, dz, p_new - p)
-        its[count - 1] = iters
+        if count == zs.shape[0]:
+            zs = _grow_rows(zs, 2 * count)
+            tzs = _grow_rows(tzs, 2 * count)
+            table = _grow_rows(table, 2 * count)
+        table[k, STEP_H] = _inner(wz, tz, tp, z_new - z, p_new - p)
+        table[k, STEP_ITERATIONS] = iters
         zs[count] = z_new
-        ps[count] = p_new
         tzs[count] = tz_new
-        tps[count] = tp_new
-        segs[count] = segment
+        table[count, STEP_P] = p_new
+        table[count, STEP_TP] = tp_new
+        table[count, STEP_SEGMENT] = segment
         count += 1
         flipped = False
         if stop_on_odd_flip:
@@ -747,9 +726,8 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
             stopped = True
             break
         h = min(h * (1.5 if iters <= 3 else (1.0 if iters <= 5 else 0.6)), h_max)
-    return (0, p, steps, stopped, zs[:count], ps[:count], tzs[:count], tps[:count], hs[:count - 1],
-            its[:count - 1], segs[:count], folds[:n_folds], g_idx[:n_grid], g_z[:n_grid], g_p[:n_grid],
-            g_it[:n_grid], g_seg[:n_grid], g_k[:n_grid], g_fr[:n_grid])
+    return (status, p, steps, stopped, zs[:count], tzs[:count], table[:count], folds[:n_folds], g_z[:n_grid],
+            g_table[:n_grid])
 
 
 @_jit
