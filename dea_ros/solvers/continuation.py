@@ -338,6 +338,13 @@ def _d0(params: MembraneParameters, choice: str, sol: PeriodicSolution) -> float
     raise ValueError(f"d0: 'static' (equilibrium at u = 0, the paper's eq. 21) or 'mean', got {choice!r}")
 
 
+def _d_rms_rows(d: np.ndarray, d0_m) -> tuple:
+    """(d_rms (eq. 21), d - d0, mean) of displacement rows d (K, M) around d0_m (None: each row's mean)."""
+    mean = d.sum(axis=1) / d.shape[1]
+    dev = d - (mean[:, None] if d0_m is None else d0_m)
+    return np.sqrt(np.einsum("ij,ij->i", dev, dev) / d.shape[1]), dev, mean
+
+
 def _sweep_points(sols: list, d0_m, iterations, wall_time_s: float, segments, stability: bool,
                   branch: str = PRIMARY) -> list:
     """SweepPoints of periodic solutions with the same number of points: d_rms around d0_m (eq. 21;
@@ -345,10 +352,8 @@ def _sweep_points(sols: list, d0_m, iterations, wall_time_s: float, segments, st
     if not sols:
         return []
     d = np.stack([sol.state[0] for sol in sols])
-    m = d.shape[1]
-    mean = d.sum(axis=1) / m
-    dev = d - (mean[:, None] if d0_m is None else d0_m)
-    d_rms = np.sqrt(np.einsum("ij,ij->i", dev, dev) / m).tolist()
+    d_rms, _dev, mean = _d_rms_rows(d, d0_m)
+    d_rms = d_rms.tolist()
     peak_to_peak = (d.max(axis=1) - d.min(axis=1)).tolist()
     mus = [sol.stability_multipliers for sol in sols]
     max_mu = [float(np.abs(mu).max()) if mu is not None else float("nan") for mu in mus]
@@ -492,7 +497,7 @@ class _Tracer:
         h = 0.5 * self.h_max if h0 is None else h0
         if hbm_kernels.enabled():
             return self._compiled_trace(z, p, tz, tp, p_lo, p_hi, max_steps, odd_projector, h)
-        zs, ps, tzs, tps, hs, its = [z], [p], [tz], [tp], [], []
+        zs, ps, tzs, tps, hs = [z], [p], [tz], [tp], []
         grid = []     # (g, z, p, iterations, segment, step k, fraction)
         fold_steps = []
         segment = 0
@@ -536,7 +541,6 @@ class _Tracer:
                 fold_steps.append(k)
                 segment += 1
             hs.append(self.inner(tz, tp, z_new - z, p_new - p))
-            its.append(iters)
             zs.append(z_new)
             ps.append(p_new)
             tzs.append(tz_new)
@@ -570,10 +574,9 @@ class _Tracer:
             raise ContinuationError(f"more than {max_steps} branch steps; the branch may be closed")
         if status == kern.TRACE_SINGULAR_TANGENT:
             raise np.linalg.LinAlgError("Singular matrix")
-        columns = (kern.GRID_INDEX, kern.GRID_P, kern.GRID_ITERATIONS, kern.GRID_SEGMENT, kern.GRID_STEP,
-                   kern.GRID_FRACTION)
-        grid = [(int(row[0]), g_z[j], row[1], int(row[2]), int(row[3]), int(row[4]), row[5])
-                for j, row in enumerate(g_table[:, list(columns)].tolist())]
+        grid = [(int(r[kern.GRID_INDEX]), g_z[j], r[kern.GRID_P], int(r[kern.GRID_ITERATIONS]),
+                 int(r[kern.GRID_SEGMENT]), int(r[kern.GRID_STEP]), r[kern.GRID_FRACTION])
+                for j, r in enumerate(g_table.tolist())]
         return {"z": zs, "p": table[:, kern.STEP_P], "tz": tzs, "tp": table[:, kern.STEP_TP],
                 "h": table[:-1, kern.STEP_H], "segment": table[:, kern.STEP_SEGMENT].astype(int), "grid": grid,
                 "fold_steps": fold_steps.tolist(), "steps": int(steps), "stopped": bool(stopped)}
@@ -654,10 +657,7 @@ def _rms_and_slopes(tracer: _Tracer, zs, tzs, d0) -> tuple:
     given, d(d_rms)/ds along them (the gradient of d_rms w.r.t. z dotted with tz; else None)."""
     m = tracer.m
     scale_d = tracer.setup.scale[0]
-    x0 = np.asarray(zs)[:, :m] * scale_d
-    ref = x0.sum(axis=1)[:, None] / m if d0 is None else d0
-    dev = x0 - ref
-    rms = np.sqrt(np.einsum("ij,ij->i", dev, dev) / m)
+    rms, dev, _mean = _d_rms_rows(np.asarray(zs)[:, :m] * scale_d, d0)
     if tzs is None:
         return rms, None
     along = scale_d * np.einsum("ij,ij->i", dev, np.asarray(tzs)[:, :m])

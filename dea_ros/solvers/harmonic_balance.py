@@ -639,13 +639,18 @@ def _gauss_phases(steps: int) -> tuple:
     return out
 
 
+def _waveform_id(inp: PeriodicInput):
+    """:meth:`PeriodicInput.waveform_key`, or the object's identity when it has none (never shared)."""
+    key = inp.waveform_key()
+    return id(inp) if key is None else key
+
+
 def _squared_input_rows(inputs, divisors, phases_for) -> np.ndarray:
     """u^2 (V^2) of ``inputs[b]`` at the phases ``phases_for(divisors[b])`` (rad), one row each:
     evaluated once per distinct waveform (:meth:`PeriodicInput.waveform_key`) and divisor."""
     rows, first = [], {}
     for inp, divisor in zip(inputs, divisors):
-        key = inp.waveform_key()
-        key = (id(inp) if key is None else key, divisor)
+        key = (_waveform_id(inp), divisor)
         row = first.get(key)
         if row is None:
             row = first[key] = inp.at_phase(phases_for(divisor)) ** 2
@@ -664,8 +669,7 @@ def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.nda
     cos_parts, sin_parts, u2_parts, offsets = [], [], [], {}
     offset = 0
     for b, (inp, divisor, n_steps) in enumerate(zip(inputs, divisors, steps.tolist())):
-        key = inp.waveform_key()
-        key = (id(inp) if key is None else key, divisor, n_steps)
+        key = (_waveform_id(inp), divisor, n_steps)
         at = offsets.get(key)
         if at is None:
             phase, cos_phase, sin_phase = _gauss_phases(n_steps)
@@ -726,6 +730,13 @@ def _jacobian_stack(model: DEAModel, x: np.ndarray, u2: np.ndarray, scale: np.nd
 MAGNUS_H_RHO, MAGNUS_MIN_STEPS, MAGNUS_MAX_STEPS = 0.5, 48, 8192
 
 
+def _magnus_steps_for(rate, period_s):
+    """The default Magnus step count(s) for spectral radius ``rate`` (1/s) over ``period_s`` (scalars or
+    arrays)."""
+    need = np.ceil(np.asarray(rate) * period_s / MAGNUS_H_RHO)
+    return np.clip(need, MAGNUS_MIN_STEPS, MAGNUS_MAX_STEPS).astype(np.int64)
+
+
 def magnus_steps(model: DEAModel, sol: PeriodicSolution, scale: np.ndarray | None = None) -> int:
     """The default number of Magnus steps of :func:`monodromy_matrix` for ``sol`` (see MAGNUS_H_RHO)."""
     m = sol.n_points
@@ -738,7 +749,7 @@ def magnus_steps(model: DEAModel, sol: PeriodicSolution, scale: np.ndarray | Non
         u2_nodes = sol.periodic_input.at_phase(sol.phases / sol.period_divisor) ** 2
         a_nodes = _jacobian_stack(model, sol.state, u2_nodes, scale)
         rate = float(np.max(np.abs(np.linalg.eigvals(a_nodes))))
-    return int(min(MAGNUS_MAX_STEPS, max(MAGNUS_MIN_STEPS, math.ceil(rate * sol.response_period_s / MAGNUS_H_RHO))))
+    return int(_magnus_steps_for(rate, sol.response_period_s))
 
 
 def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None = None,
@@ -840,9 +851,8 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     u2_nodes = _squared_input_rows(inputs, divisors, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
     periods = np.array([sol.response_period_s for sol in sols])
-    steps = np.minimum(MAGNUS_MAX_STEPS, np.maximum(MAGNUS_MIN_STEPS, np.ceil(rates * periods / MAGNUS_H_RHO)))
-    steps = steps.astype(np.int64)
-    mats = _compiled_monodromies(model, states, periods, steps, inputs, divisors, scale, 14)
+    mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), inputs, divisors,
+                                 scale, 14)
     mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for sol, mu_k in zip(sols, mu):

@@ -588,7 +588,7 @@ def _grow_rows(a, rows):
 
 
 #: Columns of the per-step and per-grid-point tables of :func:`trace_branch`.
-STEP_P, STEP_TP, STEP_H, STEP_ITERATIONS, STEP_SEGMENT = range(5)
+STEP_P, STEP_TP, STEP_H, STEP_SEGMENT = range(4)
 GRID_INDEX, GRID_P, GRID_ITERATIONS, GRID_SEGMENT, GRID_STEP, GRID_FRACTION = range(6)
 
 
@@ -608,8 +608,8 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
 
     Returns (status, p_at_end, steps, stopped, zs, tzs, step_table, fold_steps, grid_z, grid_table):
     status 0 or one of the TRACE_* codes; zs, tzs (K + 1, n) the branch points and unit tangents;
-    step_table (K + 1, 5) with the columns STEP_* (h and iterations of the step from row k, in row k;
-    the last row's are unset); grid_z (G, n) and grid_table (G, 6, columns GRID_*) the solutions at
+    step_table (K + 1, 4) with the columns STEP_* (STEP_H: the arclength of the step from row k, in
+    row k; the last row's is unset); grid_z (G, n) and grid_table (G, 6, columns GRID_*) the solutions at
     the crossed grid values.
     """
     n = z.shape[0]
@@ -617,7 +617,7 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
     cap = 256
     zs = np.empty((cap, n))
     tzs = np.empty((cap, n))
-    table = np.empty((cap, 5))
+    table = np.empty((cap, 4))
     folds = np.empty(cap, dtype=np.int64)
     g_z = np.empty((64, n))
     g_table = np.empty((64, 6))
@@ -710,7 +710,6 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
             tzs = _grow_rows(tzs, 2 * count)
             table = _grow_rows(table, 2 * count)
         table[k, STEP_H] = _inner(wz, tz, tp, z_new - z, p_new - p)
-        table[k, STEP_ITERATIONS] = iters
         zs[count] = z_new
         tzs[count] = tz_new
         table[count, STEP_P] = p_new

@@ -68,17 +68,14 @@ def check_recorded_voltage(voltage_V, name: str = "voltage_V") -> np.ndarray:
 
 def check_voltage(value, name: str = "voltage_V") -> np.ndarray:
     """Reject NaN/inf voltages with a message naming the argument."""
-    if isinstance(value, (int, float)):   # a plain number (np.float64 too): float arithmetic, no reduction
-        arr = None
-        peak = abs(float(value))
-    else:
-        arr = np.asarray(value, dtype=float)
-        peak = float(np.max(np.abs(arr), initial=0.0))   # one reduction: NaN and inf propagate into it
+    arr = np.asarray(value, dtype=float)
+    # a plain number (np.float64 too) by float arithmetic; arrays by one reduction (NaN and inf propagate)
+    peak = abs(float(value)) if isinstance(value, (int, float)) else float(np.max(np.abs(arr), initial=0.0))
     if not math.isfinite(peak):
         raise ValueError(f"{name}: must be finite (got NaN or inf)")
     if peak > 1e6:
         raise ValueError(f"{name}: {peak:.3g} V is beyond any DEA amplifier; volts expected (2.5 kV -> 2500)")
-    return np.asarray(value, dtype=float) if arr is None else arr
+    return arr
 
 
 class VoltageSignal:

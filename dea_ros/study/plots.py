@@ -4,11 +4,11 @@ Up to :data:`SCATTER_MAX` designs, each design is a marker coloured by its value
 torus (quasi-periodic) band are ringed red, with a period-doubled band orange, with folds
 (hysteresis) marked by a black triangle; failed designs are grey crosses (by reason in the
 legend). Beyond that markers would hide each other, so the plane is cut into bins: each bin is
-coloured by the median over its designs (the other parameters vary within a bin), and lines
-enclose the regions where at least half of the designs (counted over a bin and its neighbours)
-have a torus band (red), a period-doubled band (orange) or folds (black, dashed); failed designs
-stay crosses. Figures use
-:class:`matplotlib.figure.Figure` (Agg), without pyplot state.
+coloured by the median over its designs (the other parameters vary within a bin), and the
+regions where at least half of the designs (counted over a bin and its neighbours) have a torus
+band (red), a period-doubled band (orange) or folds (black, dashed) are hatched and outlined;
+failed designs stay crosses. Figures use :class:`matplotlib.figure.Figure` (Agg), without pyplot
+state.
 """
 from __future__ import annotations
 
@@ -65,11 +65,14 @@ def _binned_panel(fig, ax, x, y, val, flags, label: str) -> list:
 
     n_bins = int(np.clip(np.sqrt(x.size / 8.0), 6, 40))    # ~8 designs per bin
     (ex, ey), (ix, iy) = _bins(x, y, n_bins)
-    med = np.full((n_bins, n_bins), np.nan)
+    med = np.full(n_bins * n_bins, np.nan)
     sel = np.isfinite(val)
-    for i, j in set(zip(ix[sel].tolist(), iy[sel].tolist())):
-        inside = sel & (ix == i) & (iy == j)
-        med[j, i] = float(np.median(val[inside]))
+    flat = (iy * n_bins + ix)[sel]
+    order = np.argsort(flat, kind="stable")
+    bins, first = np.unique(flat[order], return_index=True)
+    for b, group in zip(bins, np.split(val[sel][order], first[1:])):   # designs sorted by bin
+        med[b] = np.median(group)
+    med = med.reshape(n_bins, n_bins)
     mesh = ax.pcolormesh(ex, ey, med, cmap="viridis", shading="flat")
     fig.colorbar(mesh, ax=ax, label=f"{label}, median per bin")
     cx, cy = 0.5 * (ex[1:] + ex[:-1]), 0.5 * (ey[1:] + ey[:-1])
