@@ -659,7 +659,7 @@ def _squared_input_rows(inputs, divisors, phases_for) -> np.ndarray:
 
 
 def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.ndarray, steps: np.ndarray, inputs,
-                          divisors, scale: np.ndarray, order: int) -> np.ndarray:
+                          divisors, scale: np.ndarray) -> np.ndarray:
     """Monodromies (B, 3, 3) by the compiled 4th-order Magnus scheme, one kernel call: solution b
     (collocation values ``states[b]`` over the response period ``periods_s[b]`` of ``inputs[b]`` seen
     with ``divisors[b]``) in ``steps[b]`` steps. The input at the Gauss phases is evaluated once
@@ -682,16 +682,7 @@ def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.nda
     return hbm_kernels.monodromy_batch(
         np.ascontiguousarray(states, dtype=float), steps, np.asarray(periods_s, dtype=float) / steps,
         np.concatenate(cos_parts), np.concatenate(sin_parts), np.concatenate(u2_parts), start, model.constants,
-        np.asarray(scale, dtype=float), int(order))
-
-
-def _expm_small(mats: np.ndarray, order: int = 14) -> np.ndarray:
-    """exp of a stack of small matrices with norm <= ~1 (Taylor, Horner form; error < 1e-14)."""
-    eye = np.broadcast_to(np.eye(mats.shape[-1]), mats.shape)
-    out = eye + mats / order
-    for k in range(order - 1, 0, -1):
-        out = eye + (mats @ out) / k
-    return out
+        np.asarray(scale, dtype=float))
 
 
 def _mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -703,14 +694,26 @@ def _mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _expm3(mats: np.ndarray, order: int = 12) -> np.ndarray:
-    """exp of component-wise 3x3 matrices (3, 3, ...) with norm <= ~1 (Taylor, Horner form)."""
+def _expm3(mats: np.ndarray) -> np.ndarray:
+    """exp of component-wise 3x3 matrices (3, 3, ...) with norm <= ~1: the [6/6] Pade approximant
+    (V - U)^-1 (V + U) of the compiled :func:`hbm_kernels._expm9` (same coefficients, same formulas)."""
+    b0, b1, b2, b3, b4, b5, b6 = hbm_kernels.PADE6
     eye = np.zeros_like(mats)
     eye[0, 0] = eye[1, 1] = eye[2, 2] = 1.0
-    out = eye + mats / order
-    for k in range(order - 1, 0, -1):
-        out = eye + _mm3(mats, out) / k
-    return out
+    x2 = _mm3(mats, mats)
+    x4 = _mm3(x2, x2)
+    x6 = _mm3(x4, x2)
+    u = _mm3(mats, b3 * x2 + b5 * x4 + b1 * eye)
+    v = b2 * x2 + b4 * x4 + b6 * x6 + b0 * eye
+    q = v - u
+    adj = np.empty_like(q)   # (V - U)^-1 by its adjugate
+    for i in range(3):
+        for j in range(3):
+            r1, r2 = (j + 1) % 3, (j + 2) % 3
+            c1, c2 = (i + 1) % 3, (i + 2) % 3
+            adj[i, j] = q[r1, c1] * q[r2, c2] - q[r1, c2] * q[r2, c1]
+    det = q[0, 0] * adj[0, 0] + q[0, 1] * adj[1, 0] + q[0, 2] * adj[2, 0]
+    return _mm3(adj / det, v + u)
 
 
 def _jacobian_stack(model: DEAModel, x: np.ndarray, u2: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -775,8 +778,7 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
         phase, cos_phase, sin_phase = _gauss_phases(steps)
         u2 = sol.periodic_input.at_phase(phase / sol.period_divisor) ** 2
         # (copies: the kernel is compiled for writeable arrays)
-        return hbm_kernels.monodromy(state, np.array(cos_phase), np.array(sin_phase), u2, h, model.constants, scale,
-                                     14)
+        return hbm_kernels.monodromy(state, np.array(cos_phase), np.array(sin_phase), u2, h, model.constants, scale)
     starts = np.arange(steps) * h
     t_gauss = np.concatenate([starts + _GAUSS[0] * h, starts + _GAUSS[1] * h])
     phase = omega_resp * t_gauss
@@ -785,7 +787,7 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
     a = _jacobian_stack(model, x, u2, scale)
     a1, a2 = a[:steps], a[steps:]
     omega_mag = 0.5 * h * (a1 + a2) + (math.sqrt(3.0) / 12.0) * h * h * (a2 @ a1 - a1 @ a2)
-    mats = _expm_small(omega_mag)
+    mats = np.moveaxis(_expm3(np.moveaxis(omega_mag, 0, -1)), -1, 0)
     while mats.shape[0] > 1:  # ordered product: later steps multiply from the left
         if mats.shape[0] % 2:
             mats = np.concatenate([mats, np.eye(3)[None]], axis=0)
@@ -851,8 +853,7 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     u2_nodes = _squared_input_rows(inputs, divisors, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
     periods = np.array([sol.response_period_s for sol in sols])
-    mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), inputs, divisors,
-                                 scale, 14)
+    mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), inputs, divisors, scale)
     mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for sol, mu_k in zip(sols, mu):
@@ -901,8 +902,7 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     quantum = 2.0 ** np.maximum(np.floor(np.log2(need)) - 3, 0)       # 8 step counts per octave
     steps_of = (np.ceil(need / quantum) * quantum).astype(int)
     if fast:
-        mats = _compiled_monodromies(model, x_all, periods, steps_of, [periodic_input] * nb, [divisor] * nb,
-                                     scale, 12)
+        mats = _compiled_monodromies(model, x_all, periods, steps_of, [periodic_input] * nb, [divisor] * nb, scale)
         mu = np.linalg.eigvals(mats)
         return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for steps in np.unique(steps_of):

@@ -101,8 +101,17 @@ def jit(fn):
         return numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
 
 
+def jit_inline(fn):
+    """``fn`` compiled by numba and inlined into its compiled callers (numba IR level): small helpers in
+    loops that must vectorise (LLVM leaves calls in a loop scalar); ``fn`` itself without numba."""
+    if numba is None:
+        return fn
+    return numba.njit(inline="always", nogil=True, error_model="numpy")(fn)
+
+
 _jit = jit
 _model = jit(state_equation)
+_model_inline = jit_inline(state_equation)   # the same f and df/dx, for the vectorised Magnus loop
 
 #: Newton outcome codes returned by :func:`newton` (0 converged) and their messages.
 STATUS_MESSAGES = {
@@ -883,12 +892,12 @@ def spectral_radius3(a):
     return best
 
 
-@_jit
+@jit_inline
 def _t9(a0, a1, a2, a3, a4, a5, a6, a7, a8):
     return (a0, a1, a2, a3, a4, a5, a6, a7, a8)
 
 
-@_jit
+@jit_inline
 def _mul9(a, b):
     """Product of 3x3 matrices held as row-major 9-tuples."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
@@ -898,7 +907,7 @@ def _mul9(a, b):
             a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8)
 
 
-@_jit
+@jit_inline
 def _lin9(alpha, a, beta, b):
     """alpha a + beta b for 9-tuples."""
     a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
@@ -908,101 +917,146 @@ def _lin9(alpha, a, beta, b):
             alpha * a6 + beta * b6, alpha * a7 + beta * b7, alpha * a8 + beta * b8)
 
 
-@_jit
-def _poly9(c0, c1, c2, c3, x, x2, x3):
-    """c0 I + c1 x + c2 x^2 + c3 x^3 (9-tuples)."""
-    p = _lin9(c1, x, c2, x2)
-    p = _lin9(1.0, p, c3, x3)
-    return (p[0] + c0, p[1], p[2], p[3], p[4] + c0, p[5], p[6], p[7], p[8] + c0)
+#: Coefficients b_k of the [6/6] Pade approximant of exp: p(x) = sum b_k x^k, exp(x) ~ p(x) / p(-x).
+PADE6 = (1.0, 1.0 / 2.0, 5.0 / 44.0, 1.0 / 66.0, 1.0 / 792.0, 1.0 / 15840.0, 1.0 / 665280.0)
 
 
-@_jit
-def _expm9(x, coef):
-    """exp(x) of a 3x3 matrix (9-tuple) of norm <= ~1 by its Taylor polynomial with coefficients coef
-    (16 entries, 1/k! up to the order and 0 beyond), Paterson-Stockmeyer in blocks of 4."""
+@jit_inline
+def _expm9(x):
+    """exp(x) of a 3x3 matrix (9-tuple) of norm <= ~1 by the [6/6] Pade approximant (V - U)^-1 (V + U),
+    U = x (b1 + b3 x^2 + b5 x^4), V = b0 + b2 x^2 + b4 x^4 + b6 x^6. Relative error against
+    scipy.linalg.expm: rounding at norm 0.5, ~2e-13 at norm 1 (the 12th-order Taylor polynomial used
+    before: ~1e-10). The numpy path's twin is ``harmonic_balance._expm3``."""
+    b0, b1, b2, b3, b4, b5, b6 = PADE6
     x2 = _mul9(x, x)
-    x3 = _mul9(x2, x)
     x4 = _mul9(x2, x2)
-    out = _poly9(coef[12], coef[13], coef[14], coef[15], x, x2, x3)
-    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[8], coef[9], coef[10], coef[11], x, x2, x3))
-    out = _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[4], coef[5], coef[6], coef[7], x, x2, x3))
-    return _lin9(1.0, _mul9(out, x4), 1.0, _poly9(coef[0], coef[1], coef[2], coef[3], x, x2, x3))
+    x6 = _mul9(x4, x2)
+    u_in = _lin9(b3, x2, b5, x4)
+    u_in = (u_in[0] + b1, u_in[1], u_in[2], u_in[3], u_in[4] + b1, u_in[5], u_in[6], u_in[7], u_in[8] + b1)
+    u = _mul9(x, u_in)
+    v = _lin9(1.0, _lin9(b2, x2, b4, x4), b6, x6)
+    v = (v[0] + b0, v[1], v[2], v[3], v[4] + b0, v[5], v[6], v[7], v[8] + b0)
+    q0, q1, q2, q3, q4, q5, q6, q7, q8 = _lin9(1.0, v, -1.0, u)
+    # (V - U)^-1 by its adjugate (V - U ~ I: well conditioned)
+    c0 = q4 * q8 - q5 * q7
+    c3 = q5 * q6 - q3 * q8
+    c6 = q3 * q7 - q4 * q6
+    inv_det = 1.0 / (q0 * c0 + q1 * c3 + q2 * c6)
+    inv = (c0 * inv_det, (q2 * q7 - q1 * q8) * inv_det, (q1 * q5 - q2 * q4) * inv_det,
+           c3 * inv_det, (q0 * q8 - q2 * q6) * inv_det, (q2 * q3 - q0 * q5) * inv_det,
+           c6 * inv_det, (q1 * q6 - q0 * q7) * inv_det, (q0 * q4 - q1 * q3) * inv_det)
+    return _mul9(inv, _lin9(1.0, v, 1.0, u))
 
 
-@_jit
+@jit_inline
 def _jac9(constants, d, e, v, u2, rt):
     """(df/dx)_ij rt_ij at one point as a 9-tuple (rt_ij = h scale_j / scale_i)."""
-    _f, a = _model(constants, d, e, v, u2)
+    _f, a = _model_inline(constants, d, e, v, u2)
     (j0, j1, j2), (j3, j4, j5), (j6, j7, j8) = a
     return (j0 * rt[0], j1 * rt[1], j2 * rt[2], j3 * rt[3], j4 * rt[4], j5 * rt[5], j6 * rt[6], j7 * rt[7],
             j8 * rt[8])
 
 
 @_jit
-def _state_at_phase(c0, ca, cs, nh, c1, s1):
-    """(d, e, v) of the truncated Fourier series (mean c0, cos/sin coefficients ca, cs up to nh) at the
-    phase whose cosine and sine are c1, s1."""
-    cn, sn = c1, s1
-    d, e, v = c0[0], c0[1], c0[2]
+def _gauss_point_states(state, cos_phases, sin_phases):
+    """(3, P) values at the phases with cosines / sines ``cos_phases``, ``sin_phases`` (P,) of the
+    trigonometric interpolant through the M collocation values ``state`` (3, M): mean + sum over the
+    harmonics n of a_n cos(n theta) + b_n sin(n theta), cos / sin (n theta) by rotation (the loops over
+    the points are innermost: they vectorise)."""
+    m = state.shape[1]
+    nh = (m - 1) // 2
+    npt = cos_phases.shape[0]
+    cos_table = np.empty(m)
+    sin_table = np.empty(m)
+    for j in range(m):
+        cos_table[j] = math.cos(2.0 * math.pi * j / m)
+        sin_table[j] = math.sin(2.0 * math.pi * j / m)
+    coef = np.zeros((nh + 1, 6))   # per harmonic n: a_n of (d, eps1, v), then b_n
+    w = 2.0 / m
     for n in range(1, nh + 1):
-        d += ca[0, n] * cn + cs[0, n] * sn
-        e += ca[1, n] * cn + cs[1, n] * sn
-        v += ca[2, n] * cn + cs[2, n] * sn
-        cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
-    return d, e, v
+        j = 0                      # (n k) mod m
+        for k in range(m):
+            ck = cos_table[j] * w
+            sk = sin_table[j] * w
+            for i in range(3):
+                coef[n, i] += state[i, k] * ck
+                coef[n, 3 + i] += state[i, k] * sk
+            j += n
+            if j >= m:
+                j -= m
+    mean_d = 0.0
+    mean_e = 0.0
+    mean_v = 0.0
+    for k in range(m):
+        mean_d += state[0, k]
+        mean_e += state[1, k]
+        mean_v += state[2, k]
+    out = np.empty((3, npt))
+    d = out[0]
+    e = out[1]
+    v = out[2]
+    for g in range(npt):
+        d[g] = mean_d / m
+        e[g] = mean_e / m
+        v[g] = mean_v / m
+    cn = cos_phases.copy()
+    sn = sin_phases.copy()
+    for n in range(1, nh + 1):
+        a0, a1, a2, b0, b1, b2 = coef[n, 0], coef[n, 1], coef[n, 2], coef[n, 3], coef[n, 4], coef[n, 5]
+        for g in range(npt):
+            c = cn[g]
+            s = sn[g]
+            d[g] += a0 * c + b0 * s
+            e[g] += a1 * c + b1 * s
+            v[g] += a2 * c + b2 * s
+            cn[g] = c * cos_phases[g] - s * sin_phases[g]
+            sn[g] = s * cos_phases[g] + c * sin_phases[g]
+    return out
 
 
 @_jit
-def monodromy(state, cos_phases, sin_phases, u2, h, constants, scale, order):
+def monodromy(state, cos_phases, sin_phases, u2, h, constants, scale):
     """Monodromy (3, 3) over one period by the 4th-order Magnus scheme, in scaled coordinates.
 
     ``cos_phases``, ``sin_phases`` (2S,) are the cosines and sines of the phases of the two Gauss
     points of the S steps (first points of all steps, then second points), ``u2`` the input squared
-    there, ``h`` the step (s), ``order`` the Taylor order of the matrix exponential (<= 15; that of
-    ``_expm_small`` / ``_expm3``). The state is evaluated by its trigonometric interpolant through
-    the M collocation values.
+    there, ``h`` the step (s). The state is evaluated by its trigonometric interpolant through the M
+    collocation values; exp(Omega) by the [6/6] Pade approximant (:func:`_expm9`).
     """
-    m = state.shape[1]
-    nh = (m - 1) // 2
     steps = cos_phases.shape[0] // 2
-    # trigonometric coefficients of the interpolant: x(theta) = c0 + sum_n ca_n cos(n theta) + cs_n sin(n theta)
-    c0 = np.zeros(3)
-    ca = np.zeros((3, nh + 1))
-    cs = np.zeros((3, nh + 1))
-    for i in range(3):
-        for k in range(m):
-            c0[i] += state[i, k] / m
-    for n in range(1, nh + 1):
-        for k in range(m):
-            ang = 2.0 * math.pi * ((n * k) % m) / m
-            cn, sn = math.cos(ang), math.sin(ang)
-            for i in range(3):
-                ca[i, n] += 2.0 * state[i, k] * cn / m
-                cs[i, n] += 2.0 * state[i, k] * sn / m
-    coef = np.zeros(16)   # 1 / k! up to the order, 0 beyond (4 blocks of 4)
-    coef[0] = 1.0
-    for k in range(1, order + 1):
-        coef[k] = coef[k - 1] / k
+    xg = _gauss_point_states(state, cos_phases, sin_phases)
     rt = _t9(h * scale[0] / scale[0], h * scale[1] / scale[0], h * scale[2] / scale[0],
              h * scale[0] / scale[1], h * scale[1] / scale[1], h * scale[2] / scale[1],
              h * scale[0] / scale[2], h * scale[1] / scale[2], h * scale[2] / scale[2])
     c3 = math.sqrt(3.0) / 12.0
-    total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    # exp(Omega_s) of all steps first (independent: this loop vectorises), then their ordered product
+    ex = np.empty((9, steps))
     for s in range(steps):
-        # the state at the two Gauss points (3x3 matrices below are 9-tuples: kept in registers)
-        d, e, v = _state_at_phase(c0, ca, cs, nh, cos_phases[s], sin_phases[s])
-        a1 = _jac9(constants, d, e, v, u2[s], rt)
-        d, e, v = _state_at_phase(c0, ca, cs, nh, cos_phases[s + steps], sin_phases[s + steps])
-        a2 = _jac9(constants, d, e, v, u2[s + steps], rt)
+        a1 = _jac9(constants, xg[0, s], xg[1, s], xg[2, s], u2[s], rt)
+        q = s + steps
+        a2 = _jac9(constants, xg[0, q], xg[1, q], xg[2, q], u2[q], rt)
         om = _lin9(0.5, _lin9(1.0, a1, 1.0, a2), c3, _lin9(1.0, _mul9(a2, a1), -1.0, _mul9(a1, a2)))
-        total = _mul9(_expm9(om, coef), total)     # later steps multiply from the left
+        e = _expm9(om)
+        ex[0, s] = e[0]
+        ex[1, s] = e[1]
+        ex[2, s] = e[2]
+        ex[3, s] = e[3]
+        ex[4, s] = e[4]
+        ex[5, s] = e[5]
+        ex[6, s] = e[6]
+        ex[7, s] = e[7]
+        ex[8, s] = e[8]
+    total = _t9(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    for s in range(steps):   # later steps multiply from the left
+        total = _mul9(_t9(ex[0, s], ex[1, s], ex[2, s], ex[3, s], ex[4, s], ex[5, s], ex[6, s], ex[7, s], ex[8, s]),
+                      total)
     out = np.empty((3, 3))
     out[0, 0], out[0, 1], out[0, 2], out[1, 0], out[1, 1], out[1, 2], out[2, 0], out[2, 1], out[2, 2] = total
     return out
 
 
 @_jit
-def monodromy_batch(states, steps, h, cos_flat, sin_flat, u2_flat, start, constants, scale, order):
+def monodromy_batch(states, steps, h, cos_flat, sin_flat, u2_flat, start, constants, scale):
     """Monodromies (B, 3, 3) of many solutions in one call: :func:`monodromy` of item b with
     ``steps[b]`` steps of ``h[b]`` s, the cosines and sines of its Gauss phases and its input squared
     read from ``cos_flat`` / ``sin_flat`` / ``u2_flat`` at ``start[b]`` (2 steps[b] values: shared by
@@ -1012,8 +1066,7 @@ def monodromy_batch(states, steps, h, cos_flat, sin_flat, u2_flat, start, consta
     for b in range(nb):
         lo = start[b]
         hi = lo + 2 * steps[b]
-        out[b] = monodromy(states[b], cos_flat[lo:hi], sin_flat[lo:hi], u2_flat[lo:hi], h[b], constants, scale,
-                           order)
+        out[b] = monodromy(states[b], cos_flat[lo:hi], sin_flat[lo:hi], u2_flat[lo:hi], h[b], constants, scale)
     return out
 
 
@@ -1048,7 +1101,7 @@ def _self_check() -> None:
     max_spectral_radius(state[None], u2[None], constants, scale, 1)
     max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)
     phases = np.linspace(0.0, 6.0, 8)
-    monodromy(state, np.cos(phases), np.sin(phases), np.full(8, 1e6), 1e-3, constants, scale, 14)
+    monodromy(state, np.cos(phases), np.sin(phases), np.full(8, 1e6), 1e-3, constants, scale)
     monodromy_batch(state[None], np.array([4]), np.array([1e-3]), np.cos(phases), np.sin(phases), np.full(8, 1e6),
-                    np.array([0]), constants, scale, 14)
+                    np.array([0]), constants, scale)
     collocation_residual_jacobian(z, 10.0, u2, constants, scale, 60.0, dmat)
