@@ -639,50 +639,56 @@ def _gauss_phases(steps: int) -> tuple:
     return out
 
 
-def _waveform_id(inp: PeriodicInput):
-    """:meth:`PeriodicInput.waveform_key`, or the object's identity when it has none (never shared)."""
-    key = inp.waveform_key()
-    return id(inp) if key is None else key
+def _input_groups(inputs, divisors) -> tuple:
+    """(codes (B,), [(input, divisor)] per code): items with the same waveform
+    (:meth:`PeriodicInput.waveform_key`; an input without one is its own) and divisor share a code, so
+    that what depends on the waveform only is evaluated once per code."""
+    codes = np.empty(len(inputs), dtype=np.int64)
+    reps, index = [], {}
+    for b, (inp, divisor) in enumerate(zip(inputs, divisors)):
+        key = inp.waveform_key()
+        key = (id(inp) if key is None else key, divisor)
+        code = index.get(key)
+        if code is None:
+            code = index[key] = len(reps)
+            reps.append((inp, divisor))
+        codes[b] = code
+    return codes, reps
 
 
-def _squared_input_rows(inputs, divisors, phases_for) -> np.ndarray:
-    """u^2 (V^2) of ``inputs[b]`` at the phases ``phases_for(divisors[b])`` (rad), one row each:
-    evaluated once per distinct waveform (:meth:`PeriodicInput.waveform_key`) and divisor."""
-    rows, first = [], {}
-    for inp, divisor in zip(inputs, divisors):
-        key = (_waveform_id(inp), divisor)
-        row = first.get(key)
-        if row is None:
-            row = first[key] = inp.at_phase(phases_for(divisor)) ** 2
-        rows.append(row)
-    return np.stack(rows)
+def _squared_input_rows(groups: tuple, phases_for) -> np.ndarray:
+    """u^2 (V^2) of each item of ``groups`` (:func:`_input_groups`) at the phases ``phases_for(divisor)``
+    (rad), one row each, evaluated once per code."""
+    codes, reps = groups
+    return np.stack([inp.at_phase(phases_for(divisor)) ** 2 for inp, divisor in reps])[codes]
 
 
-def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.ndarray, steps: np.ndarray, inputs,
-                          divisors, scale: np.ndarray) -> np.ndarray:
+#: (input code, step count) pairs are coded as code * _STEPS_CODE + steps (step counts stay far below: at
+#: most MAGNUS_MAX_STEPS times the continuation's location factor).
+_STEPS_CODE = 1 << 24
+
+
+def _compiled_monodromies(model: DEAModel, states: np.ndarray, periods_s: np.ndarray, steps: np.ndarray,
+                          groups: tuple, scale: np.ndarray) -> np.ndarray:
     """Monodromies (B, 3, 3) by the compiled 4th-order Magnus scheme, one kernel call: solution b
-    (collocation values ``states[b]`` over the response period ``periods_s[b]`` of ``inputs[b]`` seen
-    with ``divisors[b]``) in ``steps[b]`` steps. The input at the Gauss phases is evaluated once
-    per distinct waveform, divisor and step count."""
+    (collocation values ``states[b]`` over the response period ``periods_s[b]`` of its input in
+    ``groups`` (:func:`_input_groups`)) in ``steps[b]`` steps. The input at the Gauss phases is
+    evaluated once per distinct waveform, divisor and step count."""
     steps = np.asarray(steps, dtype=np.int64)
-    start = np.empty(steps.size, dtype=np.int64)
-    cos_parts, sin_parts, u2_parts, offsets = [], [], [], {}
-    offset = 0
-    for b, (inp, divisor, n_steps) in enumerate(zip(inputs, divisors, steps.tolist())):
-        key = (_waveform_id(inp), divisor, n_steps)
-        at = offsets.get(key)
-        if at is None:
-            phase, cos_phase, sin_phase = _gauss_phases(n_steps)
-            cos_parts.append(cos_phase)
-            sin_parts.append(sin_phase)
-            u2_parts.append(inp.at_phase(phase / divisor) ** 2)
-            at = offsets[key] = offset
-            offset += 2 * n_steps
-        start[b] = at
+    codes, reps = groups
+    pairs, inverse = np.unique(codes * _STEPS_CODE + steps, return_inverse=True)
+    cos_parts, sin_parts, u2_parts = [], [], []
+    for pair in pairs.tolist():
+        inp, divisor = reps[pair // _STEPS_CODE]
+        phase, cos_phase, sin_phase = _gauss_phases(pair % _STEPS_CODE)
+        cos_parts.append(cos_phase)
+        sin_parts.append(sin_phase)
+        u2_parts.append(inp.at_phase(phase / divisor) ** 2)
+    offsets = np.concatenate([[0], np.cumsum(2 * (pairs % _STEPS_CODE))[:-1]]).astype(np.int64)
     return hbm_kernels.monodromy_batch(
         np.ascontiguousarray(states, dtype=float), steps, np.asarray(periods_s, dtype=float) / steps,
-        np.concatenate(cos_parts), np.concatenate(sin_parts), np.concatenate(u2_parts), start, model.constants,
-        np.asarray(scale, dtype=float))
+        np.concatenate(cos_parts), np.concatenate(sin_parts), np.concatenate(u2_parts), offsets[inverse.ravel()],
+        model.constants, np.asarray(scale, dtype=float))
 
 
 def _mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -848,12 +854,11 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     scale = np.asarray(scale, dtype=float)
     states = np.stack([sol.state for sol in sols])
     m = states.shape[2]
-    inputs = [sol.periodic_input for sol in sols]
-    divisors = [sol.period_divisor for sol in sols]
-    u2_nodes = _squared_input_rows(inputs, divisors, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
+    groups = _input_groups([sol.periodic_input for sol in sols], [sol.period_divisor for sol in sols])
+    u2_nodes = _squared_input_rows(groups, lambda divisor: (2.0 * np.pi / (m * divisor)) * np.arange(m))
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
     periods = np.array([sol.response_period_s for sol in sols])
-    mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), inputs, divisors, scale)
+    mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), groups, scale)
     mu = np.linalg.eigvals(mats)
     mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for sol, mu_k in zip(sols, mu):
@@ -902,7 +907,8 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     quantum = 2.0 ** np.maximum(np.floor(np.log2(need)) - 3, 0)       # 8 step counts per octave
     steps_of = (np.ceil(need / quantum) * quantum).astype(int)
     if fast:
-        mats = _compiled_monodromies(model, x_all, periods, steps_of, [periodic_input] * nb, [divisor] * nb, scale)
+        mats = _compiled_monodromies(model, x_all, periods, steps_of, (np.zeros(nb, dtype=np.int64),
+                                                                        [(periodic_input, divisor)]), scale)
         mu = np.linalg.eigvals(mats)
         return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for steps in np.unique(steps_of):
@@ -994,7 +1000,7 @@ def solve_native_batch(
     system = setup.system(m)
     nb = len(inputs)
     phases = 2.0 * np.pi * np.arange(m) / m
-    u2 = _squared_input_rows(inputs, [divisor] * nb, lambda div: phases / div)      # (B, M)
+    u2 = _squared_input_rows(_input_groups(inputs, [divisor] * nb), lambda div: phases / div)   # (B, M)
     omega = np.array([inp.omega * divisor for inp in inputs])                       # (B,)
     if x_guesses is None:
         x0 = None if hbm_kernels.enabled() else _linear_guess_batch(setup, u2, omega, m)
