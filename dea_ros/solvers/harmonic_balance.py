@@ -907,8 +907,8 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     quantum = 2.0 ** np.maximum(np.floor(np.log2(need)) - 3, 0)       # 8 step counts per octave
     steps_of = (np.ceil(need / quantum) * quantum).astype(int)
     if fast:
-        mats = _compiled_monodromies(model, x_all, periods, steps_of, (np.zeros(nb, dtype=np.int64),
-                                                                        [(periodic_input, divisor)]), scale)
+        one_group = (np.zeros(nb, dtype=np.int64), [(periodic_input, divisor)])
+        mats = _compiled_monodromies(model, x_all, periods, steps_of, one_group, scale)
         mu = np.linalg.eigvals(mats)
         return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
     for steps in np.unique(steps_of):
