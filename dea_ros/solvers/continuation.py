@@ -430,13 +430,13 @@ class _Tracer:
     def correct(self, z_pred, p_pred, tz, tp, max_iter: int = 12):
         if hbm_kernels.enabled():  # the same corrector, compiled
             sy = self.system
-            ok, zc, pc, it, z_last, p_last = hbm_kernels.bordered_corrector(
+            ok, zc, pc, it, t = hbm_kernels.bordered_corrector(
                 np.asarray(z_pred, dtype=float), float(p_pred), np.asarray(tz, dtype=float), float(tp), self.wz,
                 self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, float(self.tol), int(max_iter))
             if not ok:
                 return None
-            # the next tangent: the bordered system where the corrector built its last matrix
-            self.last_tangent = functools.partial(self._compiled_tangent, z_last, p_last, tz, tp)
+            # the next tangent: the bordered system where the corrector built its last matrix (solved there)
+            self.last_tangent = functools.partial(self._normalised, t)
             return zc, pc, it
         zc, pc = z_pred.copy(), p_pred
         for it in range(1, max_iter + 1):
@@ -572,8 +572,6 @@ class _Tracer:
             raise ContinuationError(f"continuation step underflow near f = {self.excitation_Hz(p_end):.6g} Hz")
         if status == kern.TRACE_MAX_STEPS:
             raise ContinuationError(f"more than {max_steps} branch steps; the branch may be closed")
-        if status == kern.TRACE_SINGULAR_TANGENT:
-            raise np.linalg.LinAlgError("Singular matrix")
         grid = [(int(r[kern.GRID_INDEX]), g_z[j], r[kern.GRID_P], int(r[kern.GRID_ITERATIONS]),
                  int(r[kern.GRID_SEGMENT]), int(r[kern.GRID_STEP]), r[kern.GRID_FRACTION])
                 for j, r in enumerate(g_table.tolist())]

@@ -44,7 +44,6 @@ __all__ = [
     "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
     "monodromy", "monodromy_batch", "GAUSS_NODES", "trace_branch", "TRACE_STEP_UNDERFLOW", "TRACE_MAX_STEPS",
-    "TRACE_SINGULAR_TANGENT",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
@@ -139,8 +138,9 @@ def _max_abs(v):
 
 
 @_jit
-def _solve_inplace(a, b):
-    """Solve a x = b by Gaussian elimination with partial pivoting (a, b overwritten; x in b).
+def _eliminate(a, b, b2, two):
+    """Solve a x = b (and a x2 = b2 when ``two``) by Gaussian elimination with partial pivoting (a, b, b2
+    overwritten; x in b, x2 in b2; each right-hand side sees the same operations as alone).
 
     Returns False on an exactly zero pivot (what LAPACK reports as singular).
     """
@@ -163,6 +163,10 @@ def _solve_inplace(a, b):
             t = b[col]
             b[col] = b[p]
             b[p] = t
+            if two:
+                t = b2[col]
+                b2[col] = b2[p]
+                b2[p] = t
         piv = a[col, col]
         for row in range(col + 1, n):
             fct = a[row, col] / piv
@@ -170,12 +174,29 @@ def _solve_inplace(a, b):
                 for k in range(col + 1, n):
                     a[row, k] -= fct * a[col, k]
                 b[row] -= fct * b[col]
+                if two:
+                    b2[row] -= fct * b2[col]
     for row in range(n - 1, -1, -1):
         acc = b[row]
         for k in range(row + 1, n):
             acc -= a[row, k] * b[k]
         b[row] = acc / a[row, row]
+    if two:
+        for row in range(n - 1, -1, -1):
+            acc = b2[row]
+            for k in range(row + 1, n):
+                acc -= a[row, k] * b2[k]
+            b2[row] = acc / a[row, row]
     return True
+
+
+@_jit
+def _solve_inplace(a, b):
+    """Solve a x = b by Gaussian elimination with partial pivoting (a, b overwritten; x in b).
+
+    Returns False on an exactly zero pivot (what LAPACK reports as singular).
+    """
+    return _eliminate(a, b, b, False)
 
 
 #: Above this size the linear systems go to LAPACK (faster blocked code); below, the loop above (less overhead).
@@ -183,12 +204,15 @@ LAPACK_FROM = 40
 
 
 @_jit
-def _solve_into(a, b):
-    """Solve a x = b into b (a may be overwritten); False when a is singular."""
+def _solve_into(a, b, b2, two):
+    """Solve a x = b into b (and a x2 = b2 into b2 when ``two``; a may be overwritten); False when a is
+    singular."""
     if a.shape[0] < LAPACK_FROM:
-        return _solve_inplace(a, b)
+        return _eliminate(a, b, b2, two)
     try:
         x = np.linalg.solve(a, b)
+        if two:
+            b2[:] = np.linalg.solve(a, b2)
     except Exception:  # numba raises on an exactly singular matrix
         return False
     b[:] = x
@@ -329,44 +353,11 @@ def _reduce_rhs(e, wr, dmat, cinv, v, out):
 
 
 @_jit
-def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
-    """Solve J x = rhs, or the bordered [[J, bvec], [wvec^T, tp]] x = rhs when ``bordered``, into rhs
-    (3M or 3M + 1) by the reduction above; False when the reduced matrix is singular."""
+def _expand(e, wr, dmat, cinv, bvec, bordered, rhs, y):
+    """The full solution (x0, x1, x2[, dp]) into rhs from the reduced one y (x0[, dp]) (see above)."""
     m = dmat.shape[0]
     e02 = e[0, 2, 0]
-    ms = m + 1 if bordered else m
-    a = np.empty((ms, ms))
-    y = np.empty(ms)
-    _reduce_rhs(e, wr, dmat, cinv, rhs, y)
-    wr2 = wr * wr
-    for k in range(m):
-        for jj in range(m):
-            q = _wrap(k - jj, m)
-            a[k, jj] = -e[2, 1, k] * cinv[q] * e[1, 0, jj] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, jj]) / e02
-        a[k, k] += e[2, 0, k]
-    dp = 0.0
-    if bordered:
-        rb = np.empty(m)
-        _reduce_rhs(e, wr, dmat, cinv, bvec, rb)
-        corner = tp
-        g = rhs[3 * m]
-        for k in range(m):
-            a[k, m] = rb[k]
-        for jj in range(m):
-            q1 = 0.0
-            dtw2 = 0.0
-            for k in range(m):
-                q1 += cinv[_wrap(k - jj, m)] * wvec[m + k]
-                dtw2 += dmat[k, jj] * wvec[2 * m + k]
-            a[m, jj] = wvec[jj] - e[1, 0, jj] * q1 - wr * dtw2 / e02
-            corner -= q1 * bvec[m + jj] + wvec[2 * m + jj] * bvec[jj] / e02
-            g -= q1 * rhs[m + jj] + wvec[2 * m + jj] * rhs[jj] / e02
-        a[m, m] = corner
-        y[m] = g
-    if not _solve_into(a, y):
-        return False
-    if bordered:
-        dp = y[m]
+    dp = y[m] if bordered else 0.0
     t1 = np.empty(m)
     x1 = np.empty(m)
     x2 = np.empty(m)
@@ -389,6 +380,63 @@ def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered):
         rhs[2 * m + k] = x2[k]
     if bordered:
         rhs[3 * m] = dp
+
+
+@_jit
+def _bordered_row_rhs(e, wvec, rhs, q1, m):
+    """The reduced bordered row's right-hand side: g - sum_j q1_j rhs1_j + wvec2_j rhs0_j / e02."""
+    e02 = e[0, 2, 0]
+    g = rhs[3 * m]
+    for jj in range(m):
+        g -= q1[jj] * rhs[m + jj] + wvec[2 * m + jj] * rhs[jj] / e02
+    return g
+
+
+@_jit
+def _structured_solve(e, wr, dmat, d2col, cinv, bvec, wvec, tp, rhs, bordered, rhs2, two):
+    """Solve J x = rhs, or the bordered [[J, bvec], [wvec^T, tp]] x = rhs when ``bordered``, into rhs
+    (3M or 3M + 1) by the reduction above, and the same system with rhs2 into rhs2 when ``two`` (one
+    reduced matrix and elimination for both); False when the reduced matrix is singular."""
+    m = dmat.shape[0]
+    e02 = e[0, 2, 0]
+    ms = m + 1 if bordered else m
+    a = np.empty((ms, ms))
+    y = np.empty(ms)
+    y2 = np.empty(ms if two else 0)
+    _reduce_rhs(e, wr, dmat, cinv, rhs, y)
+    if two:
+        _reduce_rhs(e, wr, dmat, cinv, rhs2, y2)
+    wr2 = wr * wr
+    for k in range(m):
+        for jj in range(m):
+            q = _wrap(k - jj, m)
+            a[k, jj] = -e[2, 1, k] * cinv[q] * e[1, 0, jj] - (wr2 * d2col[q] + e[2, 2, k] * wr * dmat[k, jj]) / e02
+        a[k, k] += e[2, 0, k]
+    if bordered:
+        rb = np.empty(m)
+        _reduce_rhs(e, wr, dmat, cinv, bvec, rb)
+        corner = tp
+        q1v = np.empty(m)
+        for k in range(m):
+            a[k, m] = rb[k]
+        for jj in range(m):
+            q1 = 0.0
+            dtw2 = 0.0
+            for k in range(m):
+                q1 += cinv[_wrap(k - jj, m)] * wvec[m + k]
+                dtw2 += dmat[k, jj] * wvec[2 * m + k]
+            q1v[jj] = q1
+            a[m, jj] = wvec[jj] - e[1, 0, jj] * q1 - wr * dtw2 / e02
+            corner -= q1 * bvec[m + jj] + wvec[2 * m + jj] * bvec[jj] / e02
+        a[m, m] = corner
+        y[m] = _bordered_row_rhs(e, wvec, rhs, q1v, m)
+        if two:
+            y2[m] = _bordered_row_rhs(e, wvec, rhs2, q1v, m)
+    if not _solve_into(a, y, y2, two):
+        return False
+    _expand(e, wr, dmat, cinv, bvec, bordered, rhs, y)
+    if two:
+        _expand(e, wr, dmat, cinv, bvec, bordered, rhs2, y2)
     return True
 
 
@@ -404,7 +452,8 @@ def structured_solve(z, omega, u2, constants, scale, rate_ref, dmat, rhs):
     wr = omega / rate_ref
     x = rhs.copy()
     cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
-    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat), cinv, drate, drate, 0.0, x, False)
+    ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat), cinv, drate, drate, 0.0, x, False, x,
+                           False)
     return x, ok
 
 
@@ -429,6 +478,14 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
     status 0: converged (full step below tol); otherwise a key of :data:`STATUS_MESSAGES`. The Newton
     steps are solved by the structured reduction (:func:`_structured_solve`).
     """
+    cos_t, sin_t = _trig_tables(u2.shape[0])
+    return _newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
+                   _second_derivative_column(dmat))
+
+
+@_jit
+def _newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t, d2col):
+    """:func:`newton` with the tables of m (:func:`_trig_tables`, :func:`_second_derivative_column`) given."""
     n = z0.shape[0]
     m = u2.shape[0]
     z = z0.copy()
@@ -440,14 +497,12 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
     drate = np.empty(n)
     step = np.empty(n)
     wr = omega / rate_ref
-    cos_t, sin_t = _trig_tables(m)
-    d2col = _second_derivative_column(dmat)
     _fill(z, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
     cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
     rnorm = _max_abs(r)
     for it in range(1, max_iter + 1):
         step[:] = r
-        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, drate, 0.0, step, False):
+        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, drate, 0.0, step, False, step, False):
             return z, it, rnorm, 1
         snorm = _max_abs(step)
         if not np.isfinite(snorm):
@@ -477,20 +532,28 @@ def newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter):
 
 @_jit
 def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
-    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, z_m, p_m).
+    """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, t).
 
     Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0, each step by the structured
     reduction of the bordered system (:func:`_structured_solve`); gives up (ok False) on a singular
     matrix, a non-finite or > 10 step, or after max_iter; converged when the step is below
-    max(tol, 1e-9). (z_m, p_m) is the last iterate, where the last matrix was built (the next
-    tangent's: :func:`bordered_tangent`).
+    max(tol, 1e-9). t (n + 1) is the next tangent, unnormalised: the bordered system of the last
+    matrix built (at the last iterate before the final step) solved for e_n, as :func:`bordered_tangent`
+    there (the same numbers: one elimination for both right-hand sides).
     """
+    cos_t, sin_t = _trig_tables(u2.shape[0])
+    return _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
+                      _second_derivative_column(dmat))
+
+
+@_jit
+def _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
+               d2col):
+    """:func:`bordered_corrector` with the tables of m given."""
     n = z_pred.shape[0]
     m = u2.shape[0]
     zc = z_pred.copy()
     pc = p_pred
-    zm = z_pred.copy()
-    pm = p_pred
     r = np.empty(n)
     e = np.empty((3, 3, m))
     drate = np.empty(n)
@@ -498,32 +561,31 @@ def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_re
     for i in range(n):
         wvec[i] = wz * tz[i]
     rhs = np.empty(n + 1)
-    cos_t, sin_t = _trig_tables(m)
-    d2col = _second_derivative_column(dmat)
+    t = np.empty(n + 1)
     for it in range(1, max_iter + 1):
         omega = math.exp(pc)
         wr = omega / rate_ref
         _fill(zc, omega, u2, constants, scale, rate_ref, dmat, r, e, drate)
-        zm[:] = zc
-        pm = pc
         g = 0.0
         for i in range(n):
             g += tz[i] * (zc[i] - z_pred[i])
         g = wz * g + tp * (pc - p_pred)
         rhs[:n] = r
         rhs[n] = g
+        t[:] = 0.0
+        t[n] = 1.0
         cinv = _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t)
-        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, wvec, tp, rhs, True):
-            return False, zc, pc, it, zm, pm
+        if not _structured_solve(e, wr, dmat, d2col, cinv, drate, wvec, tp, rhs, True, t, True):
+            return False, zc, pc, it, t
         for i in range(n):
             zc[i] -= rhs[i]
         pc -= rhs[n]
         snorm = _max_abs(rhs)
         if not np.isfinite(snorm) or snorm > 10.0:
-            return False, zc, pc, it, zm, pm
+            return False, zc, pc, it, t
         if snorm < max(tol, 1e-9):
-            return True, zc, pc, it, zm, pm
-    return False, zc, pc, max_iter, zm, pm
+            return True, zc, pc, it, t
+    return False, zc, pc, max_iter, t
 
 
 @_jit
@@ -545,14 +607,13 @@ def bordered_tangent(z, p, tz, tp, wz, u2, constants, scale, rate_ref, dmat):
     t[n] = 1.0
     cos_t, sin_t = _trig_tables(m)
     ok = _structured_solve(e, wr, dmat, _second_derivative_column(dmat),
-                           _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t), drate, wvec, tp, t, True)
+                           _circulant_inverse(wr, e[1, 1, 0], cos_t, sin_t), drate, wvec, tp, t, True, t, False)
     return t, ok
 
 
 #: Outcome codes of :func:`trace_branch` (0: left the range, stopped or ran out of steps normally).
 TRACE_STEP_UNDERFLOW = 1
 TRACE_MAX_STEPS = 2
-TRACE_SINGULAR_TANGENT = 3
 
 
 @_jit
@@ -608,7 +669,7 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
 
     From (z, p) along the unit tangent (tz, tp), p = ln omega: predictor h, corrector
     (:func:`bordered_corrector`, 12 iterations), unit tangent where the corrector built its last
-    matrix (:func:`bordered_tangent`); a step that fails halves h, one that turns the tangent by more
+    matrix (solved there with the step); a step that fails halves h, one that turns the tangent by more
     than 10 degrees too; h grows by 1.5 / 1.0 / 0.6 after <= 3 / <= 5 / more iterations, up to
     h_max. Grid values ``p_grid`` crossed by a step are solved by :func:`newton` (30 iterations) from
     the linear interpolation. Stops when the branch leaves [p_lo, p_hi] moving outwards, after
@@ -650,6 +711,8 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
     status = 0
     odd_floor = 1e-6 * math.sqrt(n)
     n_p = p_grid.shape[0]
+    cos_t, sin_t = _trig_tables(m)
+    d2col = _second_derivative_column(dmat)
     while True:
         if steps >= max_steps:
             status = TRACE_MAX_STEPS
@@ -659,18 +722,14 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
         steps += 1
         for i in range(n):
             z_pred[i] = z[i] + h * tz[i]
-        ok, z_new, p_new, iters, z_last, p_last = bordered_corrector(
-            z_pred, p + h * tp, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, 12)
+        ok, z_new, p_new, iters, t = _corrector(z_pred, p + h * tp, tz, tp, wz, u2, constants, scale, rate_ref,
+                                                dmat, tol, 12, cos_t, sin_t, d2col)
         if not ok:
             h *= 0.5
             if h < 1e-7:
                 status = TRACE_STEP_UNDERFLOW
                 break
             continue
-        t, t_ok = bordered_tangent(z_last, p_last, tz, tp, wz, u2, constants, scale, rate_ref, dmat)
-        if not t_ok:
-            status = TRACE_SINGULAR_TANGENT
-            break
         tz_new = t[:n]
         tp_new = t[n]
         norm = math.sqrt(_inner(wz, tz_new, tp_new, tz_new, tp_new))
@@ -692,7 +751,8 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
                 frac = (pg - p) / (p_new - p)
                 for i in range(n):
                     seed[i] = z[i] + frac * (z_new[i] - z[i])
-                zg, it_g, _res, g_status = newton(seed, math.exp(pg), u2, constants, scale, rate_ref, dmat, tol, 30)
+                zg, it_g, _res, g_status = _newton(seed, math.exp(pg), u2, constants, scale, rate_ref, dmat, tol, 30,
+                                                   cos_t, sin_t, d2col)
                 if g_status != 0:
                     continue
                 if n_grid == g_z.shape[0]:
@@ -1095,8 +1155,9 @@ def _self_check() -> None:
     for stop in (False, True):
         trace_branch(z, math.log(10.0), t, 1.0, 0.0, math.log(10.5), 3, 0.01, 0.02, np.array([math.log(10.2)]), u2,
                      constants, scale, 60.0, dmat, 1.0 / (3 * m), 1e-10, np.eye(m), stop)
-    for n in (3, LAPACK_FROM + 1):   # both branches of the small dense solver
-        _solve_into(np.eye(n), np.ones(n))
+    for n in (3, LAPACK_FROM + 1):   # both branches of the small dense solver, one and two right-hand sides
+        for two in (False, True):
+            _solve_into(np.eye(n), np.ones(n), np.ones(n), two)
     state = (z.reshape(3, m) * scale[:, None])
     max_spectral_radius(state[None], u2[None], constants, scale, 1)
     max_spectral_radius(state[None], np.broadcast_to(u2, (1, m)), constants, scale, 3)
