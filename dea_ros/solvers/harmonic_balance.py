@@ -801,11 +801,23 @@ def monodromy_matrix(model: DEAModel, sol: PeriodicSolution, steps: int | None =
     return mats[0]
 
 
+def sorted_eigenvalues(mats: np.ndarray) -> np.ndarray:
+    """Eigenvalues (B, 3) of monodromies (B, 3, 3), sorted by decreasing modulus: compiled
+    (:func:`hbm_kernels.eigenvalues3`, ~1 us a matrix) or numpy's eigvals on the numpy path (the same to
+    ~1e-11). Raises numpy.linalg.LinAlgError for matrices with NaN or inf, as eigvals does."""
+    mats = np.asarray(mats, dtype=float)
+    if hbm_kernels.enabled():
+        if not np.all(np.isfinite(mats)):
+            raise np.linalg.LinAlgError("Array must not contain infs or NaNs")
+        return hbm_kernels.eigenvalues3(np.ascontiguousarray(mats))
+    mu = np.linalg.eigvals(mats)
+    return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=-1, kind="stable"), axis=-1)
+
+
 def floquet_multipliers(model: DEAModel, sol: PeriodicSolution, steps: int | None = None,
                         scale: np.ndarray | None = None) -> np.ndarray:
     """Floquet multipliers over the response period, sorted by decreasing modulus."""
-    mu = np.linalg.eigvals(monodromy_matrix(model, sol, steps, scale))
-    return mu[np.argsort(-np.abs(mu))]
+    return sorted_eigenvalues(monodromy_matrix(model, sol, steps, scale)[None])[0]
 
 
 def half_period_view(sol: PeriodicSolution) -> PeriodicSolution:
@@ -859,8 +871,7 @@ def _attach_floquet_all(model: DEAModel, sols: list, scale: np.ndarray) -> None:
     rates = hbm_kernels.max_spectral_radius(states, u2_nodes, model.constants, scale, 1)
     periods = np.array([sol.response_period_s for sol in sols])
     mats = _compiled_monodromies(model, states, periods, _magnus_steps_for(rates, periods), groups, scale)
-    mu = np.linalg.eigvals(mats)
-    mu = np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
+    mu = sorted_eigenvalues(mats)
     for sol, mu_k in zip(sols, mu):
         sol.multipliers = mu_k
         sol.half_period_multipliers = None
@@ -909,8 +920,7 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
     if fast:
         one_group = (np.zeros(nb, dtype=np.int64), [(periodic_input, divisor)])
         mats = _compiled_monodromies(model, x_all, periods, steps_of, one_group, scale)
-        mu = np.linalg.eigvals(mats)
-        return np.take_along_axis(mu, np.argsort(-np.abs(mu), axis=1), axis=1)
+        return sorted_eigenvalues(mats)
     for steps in np.unique(steps_of):
         idx = np.nonzero(steps_of == steps)[0]
         frac = np.arange(steps) / steps
@@ -936,13 +946,12 @@ def floquet_multipliers_batch(model: DEAModel, states, response_periods_s, perio
                 pad[0, 0] = pad[1, 1] = pad[2, 2] = 1.0
                 mats = np.concatenate([mats, pad], axis=3)
             mats = _mm3(mats[:, :, :, 1::2], mats[:, :, :, 0::2])
-        mu = np.linalg.eigvals(np.transpose(mats[:, :, :, 0], (2, 0, 1)))
-        order = np.argsort(-np.abs(mu), axis=1)
-        out[idx] = np.take_along_axis(mu, order, axis=1)
+        out[idx] = sorted_eigenvalues(np.transpose(mats[:, :, :, 0], (2, 0, 1)))
     return out
 
 
 __all__ += ["newton_error", "resample_state", "truncation_ratios", "monodromy_matrix", "magnus_steps",
+            "sorted_eigenvalues",
             "MAGNUS_H_RHO", "MAGNUS_MIN_STEPS", "MAGNUS_MAX_STEPS", "linear_guess", "response_layout",
             "half_period_view", "SYMMETRY_TOL"]
 

@@ -14,8 +14,10 @@ from dea_ros.solvers.continuation import frequency_sweep
 from dea_ros.solvers.harmonic_balance import (
     floquet_multipliers_batch,
     model_setup,
+    monodromy_matrix,
     solve_native,
     solve_native_batch,
+    sorted_eigenvalues,
 )
 from dea_ros.solvers.inputs import SinePeriodic
 from dea_ros.solvers.realised import realised_response
@@ -208,6 +210,57 @@ def test_spectral_radius_of_3x3_matrices_matches_eigenvalues():
     assert hbm_kernels.spectral_radius3(np.diag([3.0, -5.0, 1.0])) == pytest.approx(5.0)
     assert hbm_kernels.spectral_radius3(np.array([[0.0, -2.0, 0.0], [2.0, 0.0, 0.0], [0.0, 0.0, 1.0]])) == \
         pytest.approx(2.0)
+
+
+def test_eigenvalues_of_3x3_matrices_match_lapack_and_its_conventions():
+    """hbm_kernels.eigenvalues3 (characteristic cubic) against numpy's eigvals (LAPACK dgeev): matrices with
+    known spectra unlike monodromies too (a complex pair, three real ones, one tiny multiplier, zero),
+    badly scaled by a similarity; dgeev's conventions: real eigenvalues with imaginary part exactly 0,
+    pairs exactly conjugate with + imaginary part first, sorted by decreasing modulus."""
+    rng = np.random.default_rng(11)
+    spectra = []
+    for _ in range(200):
+        r, th = rng.uniform(0.3, 1.5), rng.uniform(0.05, 3.0)
+        spectra.append(("pair", [r * np.exp(1j * th), r * np.exp(-1j * th), rng.uniform(-1.2, 1.2)]))
+        spectra.append(("real", list(rng.uniform(-1.5, 1.5, size=3))))
+    spectra.append(("tiny", [0.9 * np.exp(0.3j), 0.9 * np.exp(-0.3j), 1e-12]))
+    for kind, lam in spectra:
+        block = np.diag(np.real(lam)).astype(float)
+        if kind != "real":
+            block[:2, :2] = [[lam[0].real, lam[0].imag], [-lam[0].imag, lam[0].real]]
+        v = rng.normal(size=(3, 3)) @ np.diag([1.0, 10.0, 0.1])
+        a = v @ block @ np.linalg.inv(v)
+        got = hbm_kernels.eigenvalues3(a[None])[0]
+        want = np.linalg.eigvals(a)
+        want = want[np.argsort(-np.abs(want), kind="stable")]
+        np.testing.assert_allclose(np.abs(got), np.abs(want), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(np.sort_complex(got), np.sort_complex(want), rtol=0, atol=1e-8)
+        assert np.all(np.diff(np.abs(got)) <= 0.0)
+        real = np.abs(np.imag(want)) == 0.0
+        assert np.all(np.imag(got)[real] == 0.0)
+        if not real.all():
+            i = int(np.argmax(np.imag(got)))
+            assert np.imag(got[i]) > 0 and np.conj(got[i]) in got and np.nonzero(got == got[i])[0][0] < \
+                np.nonzero(got == np.conj(got[i]))[0][0]
+    assert np.all(hbm_kernels.eigenvalues3(np.zeros((1, 3, 3))) == 0.0)
+
+
+@needs_numba
+def test_multipliers_of_monodromies_are_the_same_on_both_paths(a2, path):
+    """sorted_eigenvalues: the compiled cubic and numpy's eigvals on the monodromies of a resonance sweep
+    (where the multipliers cluster and cross the unit circle) within 1e-10."""
+    setup = model_setup(a2)
+    sols = solve_native_batch(a2, [SinePeriodic(2500.0, f) for f in np.linspace(8.0, 12.0, 41)], 8)
+    mats = np.stack([monodromy_matrix(setup.model, sol, scale=setup.scale) for sol in sols])
+    ref, fast = both(path, lambda: sorted_eigenvalues(mats))
+    np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("compiled", PATHS)
+def test_a_monodromy_with_nan_is_a_linalg_error_on_both_paths(path, compiled):
+    path(compiled)
+    with pytest.raises(np.linalg.LinAlgError):
+        sorted_eigenvalues(np.full((1, 3, 3), np.nan))
 
 
 def test_switch_without_numba_says_how_to_get_it(monkeypatch):
