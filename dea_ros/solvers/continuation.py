@@ -524,6 +524,7 @@ class _Tracer:
                 h *= 0.5
                 continue
             k = len(zs) - 1
+            ds = self.inner(tz, tp, z_new - z, p_new - p)     # the step's arclength
             if p_new != p:
                 lo, hi = min(p, p_new), max(p, p_new)
                 if p_new > p:
@@ -532,15 +533,18 @@ class _Tracer:
                     crossed = np.nonzero((self.p_grid >= lo) & (self.p_grid < hi))[0][::-1]
                 for g in crossed:
                     frac = (self.p_grid[g] - p) / (p_new - p)
+                    seed = np.empty_like(z)
+                    hbm_kernels.hermite_seed(z, tz, p, tp, z_new, tz_new, p_new, tp_new, ds, float(self.p_grid[g]),
+                                             seed)
                     try:
-                        zg, it_g, _ = self.solve_at(self.p_grid[g], z + frac * (z_new - z))
+                        zg, it_g, _ = self.solve_at(self.p_grid[g], seed)
                     except HarmonicBalanceError:
                         continue
                     grid.append((int(g), zg, float(self.p_grid[g]), it_g, segment, k, float(frac)))
             if np.sign(tp_new) != np.sign(tp) and tp != 0.0:
                 fold_steps.append(k)
                 segment += 1
-            hs.append(self.inner(tz, tp, z_new - z, p_new - p))
+            hs.append(ds)
             zs.append(z_new)
             ps.append(p_new)
             tzs.append(tz_new)

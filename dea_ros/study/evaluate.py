@@ -20,6 +20,8 @@ lists (folds, bands) are JSON text so that CSV and Parquet hold the same values.
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import json
 import math
 
@@ -177,9 +179,23 @@ def evaluate_design(base: MembraneParameters, spec: StudySpec, index: int, value
     return row
 
 
+@contextlib.contextmanager
+def _full_collections_skip_older_objects():
+    """Python's full garbage collections skip the objects alive at entry (gc.freeze) until exit
+    (gc.unfreeze: they are collectable again, nothing leaks). A design creates and frees thousands of
+    objects; each full collection otherwise scans the ~150,000 objects of the imported libraries
+    (measured: ~1.5 ms a design in this process, more in a Dask worker)."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 def evaluate_chunk(task: dict) -> list:
     """Rows of a batch of designs: ``task`` = {"spec": raw spec, "source", "base": base parameters dict,
     "designs": [[index, [values...]], ...]} (plain data, so it travels to any worker)."""
     spec = parse_spec(task["spec"], task.get("source", "spec"))
     base = MembraneParameters(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in task["base"].items()})
-    return [evaluate_design(base, spec, int(i), vals) for i, vals in task["designs"]]
+    with _full_collections_skip_older_objects():
+        return [evaluate_design(base, spec, int(i), vals) for i, vals in task["designs"]]
