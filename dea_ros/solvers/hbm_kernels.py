@@ -43,8 +43,8 @@ __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
     "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
-    "monodromy", "monodromy_batch", "eigenvalues3", "hermite_seed", "GAUSS_NODES", "trace_branch", "TRACE_STEP_UNDERFLOW",
-    "TRACE_MAX_STEPS",
+    "monodromy", "monodromy_batch", "eigenvalues3", "hermite_seed", "GAUSS_NODES", "trace_branch",
+    "TRACE_STEP_UNDERFLOW", "TRACE_MAX_STEPS",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
@@ -707,9 +707,9 @@ def trace_branch(z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, u2, con
     matrix (solved there with the step); a step that fails halves h, one that turns the tangent by more
     than 10 degrees too; h grows by 1.5 / 1.0 / 0.6 after <= 3 / <= 5 / more iterations, up to
     h_max. Grid values ``p_grid`` crossed by a step are solved by :func:`newton` (30 iterations) from
-    the step's cubic Hermite interpolant (:func:`hermite_seed`). Stops when the branch leaves [p_lo, p_hi] moving outwards, after
-    ``max_steps``, or (``stop_on_odd_flip``) when the odd-harmonic part (projector ``podd``) turns
-    back (the period-doubled branch returned to the T/2 orbit).
+    the step's cubic Hermite interpolant (:func:`hermite_seed`). Stops when the branch leaves
+    [p_lo, p_hi] moving outwards, after ``max_steps``, or (``stop_on_odd_flip``) when the odd-harmonic
+    part (projector ``podd``) turns back (the period-doubled branch returned to the T/2 orbit).
 
     Returns (status, p_at_end, steps, stopped, zs, tzs, step_table, fold_steps, grid_z, grid_table):
     status 0 or one of the TRACE_* codes; zs, tzs (K + 1, n) the branch points and unit tangents;
