@@ -439,6 +439,7 @@ class _Tracer:
             self.last_tangent = functools.partial(self._normalised, t)
             return zc, pc, it
         zc, pc = z_pred.copy(), p_pred
+        prev_snorm = 0.0
         for it in range(1, max_iter + 1):
             r, big = self._bordered(zc, pc, tz, tp)
             g = self.inner(tz, tp, zc - z_pred, pc - p_pred)
@@ -451,10 +452,13 @@ class _Tracer:
             snorm = float(np.max(np.abs(step)))
             if not np.isfinite(snorm) or snorm > 10.0:
                 return None
-            if snorm < max(self.tol, 1e-9):
-                # at the last iterate (within tol): the next tangent's matrix
+            done = snorm < max(self.tol, 1e-9)
+            if done or hbm_kernels.converges_below(snorm, prev_snorm, max(self.tol, 1e-9)):
+                # within tol (or predicted: counted with the step it makes unneeded, as the compiled
+                # corrector); the next tangent's matrix is this last one
                 self.last_tangent = functools.partial(self._unit_tangent, big)
-                return zc, pc, it
+                return zc, pc, (it if done else it + 1)
+            prev_snorm = snorm
         return None
 
     def tangent_from_last(self):

@@ -43,8 +43,8 @@ __all__ = [
     "available", "enabled", "set_enabled", "jit", "STATUS_MESSAGES",
     "collocation_residual_jacobian", "newton", "bordered_corrector", "bordered_tangent", "structured_solve",
     "linear_guess", "spectral_radius3", "solve_cold", "LAPACK_FROM", "solve_batch", "max_spectral_radius",
-    "monodromy", "monodromy_batch", "eigenvalues3", "hermite_seed", "GAUSS_NODES", "trace_branch",
-    "TRACE_STEP_UNDERFLOW", "TRACE_MAX_STEPS",
+    "monodromy", "monodromy_batch", "eigenvalues3", "hermite_seed", "converges_below", "GAUSS_NODES",
+    "trace_branch", "TRACE_STEP_UNDERFLOW", "TRACE_MAX_STEPS",
 ]
 
 _enabled = numba is not None and os.environ.get("DEA_ROS_NUMBA", "1").strip() not in ("0", "false", "no")
@@ -532,15 +532,26 @@ def _newton(z0, omega, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_
 
 
 @_jit
+def converges_below(snorm, prev_snorm, tol):
+    """True when Newton, whose last two steps had max-norms ``prev_snorm`` then ``snorm``, converges
+    quadratically (the step shrank more than tenfold) and its next step, ||s_k||^3 / ||s_k-1||^2 by that
+    rate, is below tol / 10: the iterate after the last step is then within tol, and the step that would
+    confirm it is skipped (the corrector's; ``prev_snorm`` 0 before the second step: never)."""
+    return snorm < 0.1 * prev_snorm and snorm * snorm * snorm < 0.1 * tol * prev_snorm * prev_snorm
+
+
+@_jit
 def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
     """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, t).
 
     Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0, each step by the structured
     reduction of the bordered system (:func:`_structured_solve`); gives up (ok False) on a singular
     matrix, a non-finite or > 10 step, or after max_iter; converged when the step is below
-    max(tol, 1e-9). t (n + 1) is the next tangent, unnormalised: the bordered system of the last
-    matrix built (at the last iterate before the final step) solved for e_n, as :func:`bordered_tangent`
-    there (the same numbers: one elimination for both right-hand sides).
+    max(tol, 1e-9), or when the next step is predicted below it (:func:`converges_below`; the iterations
+    then count that step, so the step control sees the same numbers). t (n + 1) is the next tangent,
+    unnormalised: the bordered system of the last matrix built (at the last iterate before the final
+    step) solved for e_n, as :func:`bordered_tangent` there (the same numbers: one elimination for both
+    right-hand sides).
     """
     cos_t, sin_t = _trig_tables(u2.shape[0])
     return _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
@@ -563,6 +574,7 @@ def _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat,
         wvec[i] = wz * tz[i]
     rhs = np.empty(n + 1)
     t = np.empty(n + 1)
+    prev_snorm = 0.0
     for it in range(1, max_iter + 1):
         omega = math.exp(pc)
         wr = omega / rate_ref
@@ -586,6 +598,9 @@ def _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat,
             return False, zc, pc, it, t
         if snorm < max(tol, 1e-9):
             return True, zc, pc, it, t
+        if converges_below(snorm, prev_snorm, max(tol, 1e-9)):   # counted with the step it makes unneeded
+            return True, zc, pc, it + 1, t
+        prev_snorm = snorm
     return False, zc, pc, max_iter, t
 
 
