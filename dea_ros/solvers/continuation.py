@@ -865,6 +865,15 @@ def _odd_projector(m: int) -> np.ndarray:
     return np.real(np.fft.ifft(mask[:, None] * f, axis=0))
 
 
+@functools.lru_cache(maxsize=16)
+def _odd_basis(m: int) -> np.ndarray:
+    """Orthonormal basis (3M, K) of the odd-harmonic subspace of the 3 states on m points (read-only)."""
+    w, v = np.linalg.eigh(np.kron(np.eye(3), _odd_projector(m)))
+    basis = np.ascontiguousarray(v[:, w > 0.5])
+    basis.flags.writeable = False
+    return basis
+
+
 def _period_doubled_start(setup, half: _Tracer, full: _Tracer, z_half, p_half):
     """(z, p, null vector) on the full-period grid at a period-doubling point of the T/2 branch."""
     m2, m1 = half.m, full.m
@@ -874,8 +883,7 @@ def _period_doubled_start(setup, half: _Tracer, full: _Tracer, z_half, p_half):
     z_full = full.system.to_z(x_full)
     p_full = p_half - math.log(2.0)
     _r, jac = full.system.residual_and_jacobian(z_full, math.exp(p_full), full.u2)
-    w, v = np.linalg.eigh(np.kron(np.eye(3), _odd_projector(m1)))
-    basis = v[:, w > 0.5]                       # the odd-harmonic subspace
+    basis = _odd_basis(m1)
     _u, _s, vt = np.linalg.svd(jac @ basis)
     phi = basis @ vt[-1]
     return z_full, p_full, phi
