@@ -471,12 +471,13 @@ class _Tracer:
     def excitation_Hz(self, p) -> float:
         return math.exp(p) / self.divisor / (2.0 * np.pi)
 
-    def solution(self, z, p, iterations: int = 0) -> PeriodicSolution:
+    def solution(self, z, p, iterations: int = 0, state=None) -> PeriodicSolution:
+        """The periodic solution at (z, p); ``state`` (3, M): z unscaled, when already at hand."""
         f_exc = self.excitation_Hz(p)
         return PeriodicSolution(
             frequency_Hz=f_exc, periodic_input=self.periodic_input.with_frequency(f_exc),
-            state=self.system.unscale(z), period_divisor=self.divisor, n_harmonics=(self.m - 1) // 2,
-            method="native", iterations=iterations, residual=0.0, wall_time_s=0.0,
+            state=self.system.unscale(z) if state is None else state, period_divisor=self.divisor,
+            n_harmonics=(self.m - 1) // 2, method="native", iterations=iterations, residual=0.0, wall_time_s=0.0,
         )
 
     def multipliers(self, z, p, steps: int | None = None) -> np.ndarray:
@@ -831,8 +832,11 @@ def _analyse(tracer: _Tracer, tr: dict, d0, name: str, stability: bool, ignore_e
 def _make_branch(tracer: _Tracer, tr: dict, an: dict, name: str, kind: str, d0, stability: bool,
                  t_points: float) -> Branch:
     sols = []
-    for j, (_g, zg, pg, it, _seg, _k, _fr) in enumerate(tr["grid"]):
-        sol = tracer.solution(zg, pg, it)
+    grid = tr["grid"]
+    states = (np.stack([g[1] for g in grid]).reshape(len(grid), 3, tracer.m) * tracer.system.scale[None, :, None]
+              if grid else [])
+    for j, (_g, zg, pg, it, _seg, _k, _fr) in enumerate(grid):
+        sol = tracer.solution(zg, pg, it, states[j])
         if stability:
             sol.multipliers = an["mu_grid"][j]
         sols.append(sol)

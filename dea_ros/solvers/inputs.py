@@ -240,7 +240,16 @@ class SinePeriodic(PeriodicInput):
         return self.offset_V + self.amplitude_V * np.sin(theta)
 
     def with_frequency(self, frequency_Hz: float) -> "SinePeriodic":
-        return SinePeriodic(self.amplitude_V, float(frequency_Hz), self.offset_V)
+        # amplitude and offset were checked when self was made: only the frequency is new (a sweep
+        # makes hundreds of these per design)
+        f = float(frequency_Hz)
+        if not (math.isfinite(f) and f > 0):
+            raise ValueError(f"frequency_Hz: must be > 0, got {f}")
+        out = object.__new__(SinePeriodic)
+        object.__setattr__(out, "amplitude_V", self.amplitude_V)
+        object.__setattr__(out, "frequency_Hz", f)
+        object.__setattr__(out, "offset_V", self.offset_V)
+        return out
 
     def waveform_key(self):
         return ("sine", float(self.amplitude_V), float(self.offset_V))
