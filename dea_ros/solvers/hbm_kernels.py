@@ -177,18 +177,21 @@ def _eliminate(a, b, b2, two):
                 b[row] -= fct * b[col]
                 if two:
                     b2[row] -= fct * b2[col]
+    _back_substitute(a, b)
+    if two:
+        _back_substitute(a, b2)
+    return True
+
+
+@_jit
+def _back_substitute(a, b):
+    """Solve the upper triangle of a into b (b overwritten)."""
+    n = a.shape[0]
     for row in range(n - 1, -1, -1):
         acc = b[row]
         for k in range(row + 1, n):
             acc -= a[row, k] * b[k]
         b[row] = acc / a[row, row]
-    if two:
-        for row in range(n - 1, -1, -1):
-            acc = b2[row]
-            for k in range(row + 1, n):
-                acc -= a[row, k] * b2[k]
-            b2[row] = acc / a[row, row]
-    return True
 
 
 @_jit
@@ -970,46 +973,13 @@ def _cbrt(x):
 
 
 @_jit
-def spectral_radius3(a):
-    """max |eigenvalue| of a real 3x3 matrix, from its characteristic cubic (Cardano / trigonometric)."""
-    tr = a[0, 0] + a[1, 1] + a[2, 2]
-    minors = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] + a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
-              + a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
-    det = (a[0, 0] * (a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1]) - a[0, 1] * (a[1, 0] * a[2, 2] - a[1, 2] * a[2, 0])
-           + a[0, 2] * (a[1, 0] * a[2, 1] - a[1, 1] * a[2, 0]))
-    # lambda^3 + c2 lambda^2 + c1 lambda + c0 with c2 = -tr, c1 = minors, c0 = -det; lambda = t + tr / 3
-    c2 = -tr
-    shift = -c2 / 3.0
-    p = minors - c2 * c2 / 3.0
-    q = 2.0 * c2 ** 3 / 27.0 - c2 * minors / 3.0 - det
-    disc = 0.25 * q * q + p * p * p / 27.0
-    if disc > 0.0:
-        sq = math.sqrt(disc)
-        u = _cbrt(-0.5 * q + sq)
-        v = _cbrt(-0.5 * q - sq)
-        real_root = abs(u + v + shift)
-        re = -0.5 * (u + v) + shift
-        im = 0.5 * math.sqrt(3.0) * (u - v)
-        return max(real_root, math.sqrt(re * re + im * im))
-    r = math.sqrt(max(-p / 3.0, 0.0))
-    if r == 0.0:
-        return abs(shift)
-    cos_arg = min(1.0, max(-1.0, -0.5 * q / (r * r * r)))
-    phi = math.acos(cos_arg)
-    best = 0.0
-    for k in range(3):
-        best = max(best, abs(2.0 * r * math.cos((phi + 2.0 * math.pi * k) / 3.0) + shift))
-    return best
-
-
-@_jit
-def _eigenvalues3_into(a, out):
-    """Eigenvalues of a real 3x3 matrix ``a`` into ``out`` (3,), complex, as LAPACK's dgeev gives them (real
-    ones with zero imaginary part, a complex pair exactly conjugate, + imaginary part first), sorted by
-    decreasing modulus (stable). From the characteristic cubic: one real root by Cardano / the
-    trigonometric form, polished by Newton on the cubic, the other two from the deflated quadratic
-    (measured on 1,741 monodromies of four sweeps: within 1.2e-11 of numpy's eigvals, 4e-12 for the
-    largest modulus; clustered roots are the least accurate for both)."""
+def _eigenvalues3(a):
+    """The eigenvalues of a real 3x3 matrix ``a`` as three complex numbers (unsorted), as LAPACK's dgeev
+    gives them: real ones with zero imaginary part, a complex pair exactly conjugate, + imaginary part
+    first. From the characteristic cubic: one real root by Cardano / the trigonometric form, polished by
+    Newton on the cubic, the other two from the deflated quadratic (measured on 1,741 monodromies of four
+    sweeps: within 1.2e-11 of numpy's eigvals, 4e-12 for the largest modulus; clustered roots are the
+    least accurate for both)."""
     tr = a[0, 0] + a[1, 1] + a[2, 2]
     minors = (a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0] + a[0, 0] * a[2, 2] - a[0, 2] * a[2, 0]
               + a[1, 1] * a[2, 2] - a[1, 2] * a[2, 1])
@@ -1041,13 +1011,23 @@ def _eigenvalues3_into(a, out):
     half_disc = 0.25 * b * b - c
     if half_disc < 0.0:
         im = math.sqrt(-half_disc)
-        out[0] = complex(-0.5 * b, im)
-        out[1] = complex(-0.5 * b, -im)
-    else:
-        x1 = -0.5 * b - math.copysign(math.sqrt(half_disc), b)
-        out[0] = x1
-        out[1] = c / x1 if x1 != 0.0 else 0.0
-    out[2] = r
+        return complex(-0.5 * b, im), complex(-0.5 * b, -im), complex(r, 0.0)
+    x1 = -0.5 * b - math.copysign(math.sqrt(half_disc), b)
+    return complex(x1, 0.0), complex(c / x1 if x1 != 0.0 else 0.0, 0.0), complex(r, 0.0)
+
+
+@_jit
+def spectral_radius3(a):
+    """max |eigenvalue| of a real 3x3 matrix (:func:`_eigenvalues3`)."""
+    w0, w1, w2 = _eigenvalues3(a)
+    return max(abs(w0), abs(w1), abs(w2))
+
+
+@_jit
+def _eigenvalues3_into(a, out):
+    """:func:`_eigenvalues3` into ``out`` (3,), sorted by decreasing modulus (stable: a pair keeps its
+    + imaginary part first)."""
+    out[0], out[1], out[2] = _eigenvalues3(a)
     for i in range(1, 3):
         j = i
         while j > 0 and abs(out[j]) > abs(out[j - 1]):
