@@ -20,12 +20,9 @@ import traceback
 from pathlib import Path
 
 import numpy as np
+from .errors import CliError, DeaRosError
 
 __all__ = ["main", "build_parser"]
-
-
-class CliError(Exception):
-    """A user-facing error: printed without a traceback, exit code 2."""
 
 
 #: ``simulate --duration`` limit, s: longer than any protocol (the paper's takes 200 s); every
@@ -441,22 +438,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _bag_error():
-    from .bag import BagError
-
-    return BagError
-
-
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .model import NoEquilibriumError, ParameterError
-    from .solvers.harmonic_balance import HarmonicBalanceError
-
     try:
         return int(args.func(args) or 0)
-    except (CliError, ParameterError, NoEquilibriumError, HarmonicBalanceError, ValueError,
-            _bag_error()) as exc:
+    except (DeaRosError, ValueError) as exc:  # the package's errors and bad values: a message, exit 2
         print(f"dea-ros {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # a file that cannot be read or written: name it

@@ -37,12 +37,9 @@ from pathlib import Path
 from typing import Any, Callable
 
 import yaml
+from .errors import ProtocolError
 
 __all__ = ["Protocol", "Segment", "ProtocolError", "load_protocol", "protocol_path"]
-
-
-class ProtocolError(ValueError):
-    """A protocol file is invalid (the message names the segment and field)."""
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from .errors import BagError, BagTruncatedWarning, BagWarning
 from .mcap_io import McapScan, has_valid_footer, scan_mcap
 from .metadata import METADATA_FILENAME, load_metadata_yaml
 from .qos import QosProfile, parse_qos_profiles
+from ..errors import McapSummaryMissing
 
 __all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage", "message_decoder"]
 
@@ -53,10 +54,6 @@ class RawBagMessage(NamedTuple):
     data: bytes
 
 
-class _NoSummary(Exception):
-    """A complete MCAP file without summary section."""
-
-
 class _McapFile:
     """One storage file: summary-based when complete, scan-based when truncated."""
 
@@ -77,7 +74,7 @@ class _McapFile:
                 header = self._reader.get_header()
                 summary = self._reader.get_summary()
                 if summary is None:  # no summary section (allowed by MCAP): read linearly
-                    raise _NoSummary()
+                    raise McapSummaryMissing()
                 if summary.statistics is None:
                     raise ValueError("no summary statistics")
                 self.profile = header.profile
@@ -93,7 +90,7 @@ class _McapFile:
             except BagError:
                 self.close()
                 raise
-            except _NoSummary:
+            except McapSummaryMissing:
                 self.close()
             except Exception as exc:  # damaged summary: fall back to a linear scan
                 self.close()

@@ -34,12 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import DEAModel, MembraneParameters, NoEquilibriumError, static_equilibrium
+from ..errors import UnreachableReferenceError
 
 __all__ = ["UnreachableReferenceError", "ModelInverse", "StrainIntegrator"]
-
-
-class UnreachableReferenceError(ValueError):
-    """A reference the actuator cannot follow (outside the range, or needing u^2 < 0 / too fast)."""
 
 
 def _um(x_m: float) -> str:

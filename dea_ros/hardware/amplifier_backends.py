@@ -46,6 +46,7 @@ import time
 import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Deque, Dict, List, Mapping, Optional, Tuple
+from ..errors import AmplifierBackendError, AmplifierRangeWarning
 
 __all__ = [
     "AmplifierBackendError",
@@ -79,14 +80,6 @@ ULDAQ_INSTALL_HINT = (
     "pip install uldaq and install libuldaq from Measurement Computing "
     "(https://github.com/mccdaq/uldaq: build and 'sudo make install', which also installs the udev rules)"
 )
-
-
-class AmplifierBackendError(RuntimeError):
-    """An amplifier backend failed or refused a value. The message says what to do."""
-
-
-class AmplifierRangeWarning(UserWarning):
-    """The DAQ range times the amplifier gain does not match the configured maximum voltage."""
 
 
 # =========================================================================== interface

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Dict, Mapping, Optional
 
 from ..model.parameters import MAX_BREAKDOWN_FIELD_V_PER_M
+from ..errors import SafetyConfigError
 
 __all__ = [
     "SafetyConfigError",
@@ -76,10 +77,6 @@ MAX_TIME_TO_ZERO_S = 10.0
 #: Membrane thickness range (1-1000 um) accepted for a voltage limit, m.
 MIN_THICKNESS_M = 1e-6
 MAX_THICKNESS_M = 1e-3
-
-
-class SafetyConfigError(ValueError):
-    """Invalid safety limits. The message names the field and the fix."""
 
 
 # --------------------------------------------------------------------------- helpers

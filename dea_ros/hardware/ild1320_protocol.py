@@ -127,6 +127,7 @@ from dataclasses import dataclass, field
 from typing import Iterable, NamedTuple, Optional, Sequence, Union
 
 from dea_ros.hardware.laser import MeasurementError, SensorError
+from ..errors import CommandError, FrameFormatError
 
 __all__ = [
     # serial settings
@@ -250,10 +251,6 @@ _ERROR_TO_CODE: dict[MeasurementError, int] = {v: k for k, v in ERROR_CODES.item
 OUTPUT_DELAY_CYCLES = 3
 #: Measuring rates of the ILD1320 in Hz (0.25, 0.5, 1, 2 kHz).
 ALLOWED_MEASURING_RATES_HZ: tuple[float, ...] = (250.0, 500.0, 1000.0, 2000.0)
-
-
-class FrameFormatError(ValueError):
-    """Bytes that are not one valid 3-byte measurement frame."""
 
 
 class Sample(NamedTuple):
@@ -567,16 +564,6 @@ COMMAND_TERMINATOR = b"\r\n"
 _ERROR_LINE = re.compile(r"^E(\d{2,3})\b\s*(.*)$")
 _WARNING_LINE = re.compile(r"^W(\d{2,3})\b\s*(.*)$")
 _NUMBER = re.compile(r"^[-+]?(\d+(\.\d*)?|\.\d+)([eE][-+]?\d+)?$")
-
-
-class CommandError(SensorError):
-    """The sensor refused a command with an ``Exxx`` error message."""
-
-    def __init__(self, command: str, code: int, message: str) -> None:
-        super().__init__(f"sensor refused {command!r}: E{code:03d} {message}".rstrip())
-        self.command = command
-        self.code = code
-        self.message = message
 
 
 @dataclass(frozen=True)

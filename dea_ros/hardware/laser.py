@@ -27,6 +27,7 @@ import abc
 import enum
 import math
 from typing import NamedTuple, Optional, Union
+from ..errors import SensorConfigurationError, SensorDisconnected, SensorError
 
 __all__ = [
     "MeasurementError",
@@ -105,29 +106,6 @@ class DisplacementReading(NamedTuple):
     def error(self) -> Optional[MeasurementError]:
         """The error of an error sample, or ``None`` for a valid one."""
         return self.value if isinstance(self.value, MeasurementError) else None
-
-
-class SensorError(RuntimeError):
-    """A displacement sensor operation failed (bad reply, not open, timeout, ...)."""
-
-
-class SensorDisconnected(SensorError):
-    """The sensor delivers no usable data: serial error, port gone, or silence.
-
-    Call :meth:`DisplacementSensor.reconnect` to recover.
-    """
-
-
-class SensorConfigurationError(SensorError):
-    """The connected sensor differs from the configuration (model, range, rate, ...).
-
-    ``mismatches`` lists every difference as a sentence naming the setting, what
-    the sensor reports and what the configuration expects.
-    """
-
-    def __init__(self, message: str, mismatches: "tuple[str, ...]" = ()) -> None:
-        super().__init__(message)
-        self.mismatches = tuple(mismatches)
 
 
 def validated_tare_offset_m(offset_m: float) -> float:

@@ -21,6 +21,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from ..errors import CliError
 
 __all__ = ["register", "cmd_synth", "cmd_identify", "cmd_identify_many", "build_parser", "main"]
 
@@ -47,10 +48,6 @@ def _progress_printer(stream):
         print(msg, file=stream, flush=True)
 
     return show
-
-
-class _UsageError(Exception):
-    """Bad arguments or input files: exit code 2 with this message."""
 
 
 def _error(command: str, exc) -> int:
@@ -88,10 +85,10 @@ def _check_out_dir(path) -> None:
     """``--out`` must be a folder (new or existing), not a file: checked before any work."""
     out = Path(path)
     if out.exists() and not out.is_dir():
-        raise _UsageError(f"--out {path}: exists and is not a folder; give a new or existing folder")
+        raise CliError(f"--out {path}: exists and is not a folder; give a new or existing folder")
     parent = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
     if not parent.is_dir():
-        raise _UsageError(f"--out {path}: {parent} is not a folder")
+        raise CliError(f"--out {path}: {parent} is not a folder")
 
 
 def _check_harmonics(value) -> None:
@@ -100,7 +97,7 @@ def _check_harmonics(value) -> None:
     try:
         check_harmonics(value, "--harmonics")
     except ValueError as exc:
-        raise _UsageError(str(exc)) from None
+        raise CliError(str(exc)) from None
 
 
 def _check_membrane(name_or_path) -> None:
@@ -110,18 +107,18 @@ def _check_membrane(name_or_path) -> None:
     try:
         load_parameters(name_or_path)
     except (RecursionError, UnicodeDecodeError, OSError) as exc:
-        raise _UsageError(_input_problem("--membrane", name_or_path, exc)) from None
+        raise CliError(_input_problem("--membrane", name_or_path, exc)) from None
     except ValueError as exc:  # ParameterError and the plausibility checks
-        raise _UsageError(f"--membrane {name_or_path}: {exc}") from None
+        raise CliError(f"--membrane {name_or_path}: {exc}") from None
 
 
 def _parse_floats(option: str, text: str) -> list:
     try:
         values = [float(x) for x in text.split(",")]
     except ValueError:
-        raise _UsageError(f"{option}: comma-separated numbers in Hz expected, got {text!r}") from None
+        raise CliError(f"{option}: comma-separated numbers in Hz expected, got {text!r}") from None
     if not all(v > 0 and v < float("inf") for v in values):
-        raise _UsageError(f"{option}: frequencies must be positive and finite, got {text!r}")
+        raise CliError(f"{option}: frequencies must be positive and finite, got {text!r}")
     return values
 
 
@@ -138,8 +135,8 @@ def cmd_synth(args) -> int:
             else:
                 params = load_parameters(args.membrane)
         except (RecursionError, UnicodeDecodeError, OSError) as exc:
-            raise _UsageError(_input_problem("--params" if args.params else "--membrane",
-                                             args.params or args.membrane, exc)) from None
+            raise CliError(_input_problem("--params" if args.params else "--membrane",
+                                          args.params or args.membrane, exc)) from None
         freqs = DEFAULT_SINE_FREQUENCIES_HZ
         if args.frequencies:
             freqs = tuple(_parse_floats("--frequencies", args.frequencies))
@@ -147,7 +144,7 @@ def cmd_synth(args) -> int:
         t0 = time.perf_counter()
         exp = synthesize(params, float(args.noise), args.out, seed=int(args.seed), sine_frequencies_Hz=freqs,
                          progress=progress)
-    except (_UsageError, ParameterError, ValueError) as exc:
+    except (CliError, ParameterError, ValueError) as exc:
         return _error("synth", exc)
     except OSError as exc:
         return _error("synth", f"--out {getattr(exc, 'filename', None) or args.out}: {exc.strerror or exc}")
@@ -158,7 +155,7 @@ def cmd_synth(args) -> int:
 
 
 def _checked_options(args):
-    """Check the options of ``identify`` shared by one and many inputs (raises _UsageError naming the
+    """Check the options of ``identify`` shared by one and many inputs (raises CliError naming the
     option); returns the fit frequencies (None, "all" or a list of Hz)."""
     _check_out_dir(args.out)
     _check_harmonics(args.harmonics)
@@ -186,7 +183,7 @@ def cmd_identify(args) -> int:
         args.data = args.data[0]
     try:
         fit_freqs = _checked_options(args)
-    except _UsageError as exc:
+    except CliError as exc:
         return _error("identify", exc)
     data_path = Path(args.data)
     if not (data_path / "manifest.yaml").is_file() and not data_path.name.endswith((".yaml", ".yml")):
@@ -249,8 +246,8 @@ MAX_UNCERTAINTY_SAMPLES = 10000
 def _check_samples(args) -> None:
     n = getattr(args, "uncertainty_samples", 0)
     if n != 0 and not 2 <= n <= MAX_UNCERTAINTY_SAMPLES:
-        raise _UsageError(f"--uncertainty-samples: 0 (no band) or 2 to {MAX_UNCERTAINTY_SAMPLES} Monte Carlo "
-                          f"samples, got {n}")
+        raise CliError(f"--uncertainty-samples: 0 (no band) or 2 to {MAX_UNCERTAINTY_SAMPLES} Monte Carlo "
+                       f"samples, got {n}")
 
 
 def _check_input(data) -> None:
@@ -259,10 +256,10 @@ def _check_input(data) -> None:
 
     p = Path(data)
     if not p.exists():
-        raise _UsageError(f"DATA {data}: no such file or folder")
+        raise CliError(f"DATA {data}: no such file or folder")
     if (p / "manifest.yaml").is_file() or (p.is_file() and p.name.endswith((".yaml", ".yml"))) or is_bag(p):
         return
-    raise _UsageError(f"DATA {data}: neither an experiment folder (with manifest.yaml) nor a rosbag2 MCAP bag")
+    raise CliError(f"DATA {data}: neither an experiment folder (with manifest.yaml) nor a rosbag2 MCAP bag")
 
 
 def cmd_identify_many(args) -> int:
@@ -278,9 +275,9 @@ def cmd_identify_many(args) -> int:
         for d in args.data:   # before any engine starts: each input must look like one
             _check_input(d)
         if args.workers is not None and args.workers < 1:
-            raise _UsageError(f"--workers: a positive number of worker processes is needed, got {args.workers}")
+            raise CliError(f"--workers: a positive number of worker processes is needed, got {args.workers}")
         engine = engine_from_args(args)
-    except (_UsageError, EngineError) as exc:
+    except (CliError, EngineError) as exc:
         return _error("identify", exc)
     options = _identify_options(args, fit_freqs)
     with engine:

@@ -73,9 +73,10 @@ from ..solvers.transient import (
     rhs_permittivity_derivative,
     rhs_stress_derivative,
 )
-from .experiments import ExperimentError, SineData, StepData, estimate_noise_m
+from .experiments import SineData, StepData, estimate_noise_m
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import stress_combinations
+from ..errors import DynamicFitError
 
 __all__ = [
     "DynamicFitResult",
@@ -111,10 +112,6 @@ NAMES = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
 CURVATURE_UNIT_PA = 1e6
 #: Search box of the optimizers (Pa, Pa s, Pa s).
 PARAMETER_BOUNDS = {"k1_Pa": (1e3, 1e11), "eta1_Pa_s": (1e1, 1e13), "eta2_Pa_s": (1e-1, 1e9)}
-
-
-class DynamicFitError(ExperimentError):
-    """The dynamic data cannot support the fit, or every simulation failed."""
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,7 @@ import numpy as np
 import yaml
 
 from ..model.parameters import PRESET_NAMES, MembraneParameters, ParameterError, load_parameters
+from ..errors import ExperimentError
 
 __all__ = [
     "FORMAT",
@@ -104,10 +105,6 @@ _WRONG_UNITS = {
     "kg": {"g": "divide by 1000", "mg": "divide by 1e6"},
     "Hz": {"kHz": "multiply by 1000", "hz": "write Hz", "rad_s": "divide by 2 pi"},
 }
-
-
-class ExperimentError(ValueError):
-    """Invalid experiment data; the message names the file, column and row, and the fix."""
 
 
 # --------------------------------------------------------------------------- CSV I/O

@@ -50,9 +50,10 @@ from ..model.parameters import MembraneParameters
 from ..solvers.harmonic_balance import HarmonicBalanceError
 from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
 from .dynamic_fit import PARAMETER_BOUNDS, FrequencyPoint, periodic_rms_gradient, point_solution
-from .experiments import ExperimentError, StaticData, StepData, estimate_noise_m
+from .experiments import StaticData, StepData, estimate_noise_m
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
+from ..errors import JointFitError
 
 __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError", "CURVATURE_REL_CI_LIMIT",
            "JOINT_NAMES"]
@@ -64,10 +65,6 @@ JOINT_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''
                "eta1_Pa_s", "eta2_Pa_s")
 _UNITS = (1e5, 1e5, 1e6, 1e7)   # optimizer units of the stress combinations (Pa)
 _STRESS_BOUND = (np.inf, np.inf, 5e8, 5e9)   # |sigma_h''(1)|, |sigma_h'''(1)| bounds of the search (Pa)
-
-
-class JointFitError(ExperimentError):
-    """The joint refinement cannot run on these data."""
 
 
 @dataclass

@@ -39,7 +39,7 @@ from ..solvers.inputs import SampledVoltage, SinePeriodic
 from ..solvers.integrate import simulate
 from ..solvers.transient import TransientCollocation
 from .dynamic_fit import DynamicFitResult, FrequencyPoint, fit_dynamic, point_solution, select_fit_frequencies
-from .experiments import ExperimentError, ExperimentSet, data_warnings, estimate_noise_m
+from .experiments import ExperimentSet, data_warnings, estimate_noise_m
 from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
 from .metrics import linear_combination_ci, measured_resonance_peak, static_errors_um, step_error_indices
 from .static_fit import (
@@ -49,13 +49,10 @@ from .static_fit import (
     fit_static,
     stress_combinations,
 )
+from ..errors import IdentificationError
 
 __all__ = ["IdentificationResult", "IdentificationError", "identify", "evaluate", "classify_records",
            "series_model"]
-
-
-class IdentificationError(ExperimentError):
-    """The experiment set cannot be identified as asked (the message says what is missing)."""
 
 
 @dataclass

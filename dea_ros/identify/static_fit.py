@@ -52,8 +52,9 @@ from scipy.optimize import least_squares, minimize
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
-from .experiments import ExperimentError, StaticData
+from .experiments import StaticData
 from .metrics import ParameterStatistics, parameter_statistics, static_errors_um
+from ..errors import StaticFitError
 
 __all__ = [
     "StaticFitResult",
@@ -86,10 +87,6 @@ THIRD_DERIVATIVE_ROW = np.array([0.0, 0.0, 6.0, 6.0, 24.0, 60.0])
 #: COMBINATION_MATRIX with the third derivative appended (4 x 6).
 EXTENDED_COMBINATION_MATRIX = np.vstack([COMBINATION_MATRIX, THIRD_DERIVATIVE_ROW])
 _SIGMA_REF_PA = 1e5  # scale of the stress parameters in the optimizers
-
-
-class StaticFitError(ExperimentError):
-    """The static data cannot support the fit (too few points, no voltage points, ...)."""
 
 
 def stress_combinations(beta_Pa, gamma_Pa) -> np.ndarray:

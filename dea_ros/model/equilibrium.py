@@ -25,12 +25,9 @@ import numpy as np
 
 from .dynamics import DEAModel
 from .parameters import MembraneParameters
+from ..errors import NoEquilibriumError
 
 __all__ = ["StaticEquilibrium", "NoEquilibriumError", "static_equilibrium", "static_state"]
-
-
-class NoEquilibriumError(ValueError):
-    """No static equilibrium exists for the requested voltage and mass."""
 
 
 @dataclass(frozen=True)

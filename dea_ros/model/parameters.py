@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import yaml
+from ..errors import ParameterError
 
 __all__ = [
     "MembraneParameters",
@@ -105,10 +106,6 @@ _PRESET_GEOMETRY = {
 }
 #: A preset-named file whose geometry differs by more than this factor is taken for a slip.
 _PRESET_GEOMETRY_FACTOR = 3.0
-
-
-class ParameterError(ValueError):
-    """A parameter set is invalid. The message names the field and the fix."""
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,7 @@ from .harmonic_balance import (
 from .inputs import PeriodicInput
 from .realised import SETTLE_PERIODS, WINDOW_PERIODS, realised_response
 from .steady_state import SteadyStateError, solve_periodic
+from ..errors import ContinuationError
 
 __all__ = [
     "SweepPoint", "Fold", "Bifurcation", "Response", "Band", "Branch", "SweepResult", "frequency_sweep",
@@ -88,10 +89,6 @@ H_MAX = 0.05
 
 #: Bifurcations are located with this many times the default Magnus steps (:func:`magnus_steps`).
 LOCATE_STEP_FACTOR = 4
-
-
-class ContinuationError(RuntimeError):
-    """The continuation could not follow the branch (step size underflow)."""
 
 
 @dataclass

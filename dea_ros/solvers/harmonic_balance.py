@@ -42,6 +42,7 @@ from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from . import hbm_kernels
 from .inputs import PeriodicInput
+from ..errors import HarmonicBalanceError
 
 __all__ = [
     "HarmonicBalanceError",
@@ -57,10 +58,6 @@ __all__ = [
     "ModelSetup",
     "model_setup",
 ]
-
-
-class HarmonicBalanceError(RuntimeError):
-    """Harmonic balance did not converge (the message says how far it got and what to try)."""
 
 
 def fourier_differentiation_matrix(m: int) -> np.ndarray:

@@ -19,12 +19,9 @@ from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from .inputs import ConstantVoltage, VoltageSignal, check_voltage
+from ..errors import IntegrationError
 
 __all__ = ["TimeResponse", "simulate", "RealTimeStepper", "state_scale", "IntegrationError"]
-
-
-class IntegrationError(RuntimeError):
-    """The adaptive integrator failed."""
 
 
 def state_scale(params: MembraneParameters) -> np.ndarray:

@@ -36,14 +36,11 @@ from .harmonic_balance import (
     model_setup,
 )
 from .inputs import PeriodicInput
+from ..errors import SteadyStateError
 
 __all__ = ["solve_periodic", "integrate_to_steady_state", "shoot_periodic_orbit", "SteadyStateError", "METHODS"]
 
 METHODS = ("native", "mousai", "integration")
-
-
-class SteadyStateError(RuntimeError):
-    """Forward integration did not reach the periodic steady state in the time allowed."""
 
 
 def integrate_to_steady_state(

@@ -56,6 +56,7 @@ from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from .inputs import check_voltage
+from ..errors import TransientError
 
 __all__ = [
     "TransientSolution",
@@ -76,10 +77,6 @@ DYNAMIC_PARAMETERS = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
 
 _KL = 5  # lower bandwidth of the collocation Jacobian: rows 3 + 3n + i, columns 3n + j .. 3n + 5
 _KU = 2  # upper bandwidth
-
-
-class TransientError(RuntimeError):
-    """The collocation Newton iteration did not converge (the message says what to try)."""
 
 
 @dataclass

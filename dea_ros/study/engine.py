@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from ..errors import EngineError
 
 __all__ = ["Engine", "EngineError", "ENGINE_KINDS", "Progress", "dask_available"]
 
@@ -28,10 +29,6 @@ ENGINE_KINDS = ("auto", "serial", "processes", "dask")
 _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 _NO_WORKER_PROFILER = {"distributed.worker.profile.enabled": False, "distributed.worker.profile.interval": "1s",
                        "distributed.worker.profile.cycle": "10s"}
-
-
-class EngineError(RuntimeError):
-    """The engine cannot run as asked (e.g. Dask missing for ``--scheduler``); the message says the fix."""
 
 
 def dask_available() -> bool:

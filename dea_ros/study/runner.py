@@ -20,12 +20,9 @@ from .engine import Engine, Progress
 from .evaluate import evaluate_chunk, result_columns
 from .results import parquet_problem, read_chunk, write_chunk, write_results
 from .spec import SpecError, StudySpec
+from ..errors import StudyInterrupted
 
 __all__ = ["run_study", "study_chunks", "StudyInterrupted"]
-
-
-class StudyInterrupted(RuntimeError):
-    """The study stopped before all chunks were done; finished chunks are kept for a resume."""
 
 
 def study_chunks(spec: StudySpec) -> list:

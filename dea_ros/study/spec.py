@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+from ..errors import SpecError
 
 __all__ = ["SpecError", "StudySpec", "Variable", "load_spec", "MEMBRANE_FIELDS", "EXCITATION_FIELDS",
            "SAMPLING_METHODS"]
@@ -33,10 +34,6 @@ _SWEEP_DEFAULTS = {"points": 200, "spacing": "lin", "harmonics": 8, "stability":
                    "realised": False}
 #: Largest number of designs one spec may describe (a grid multiplies quickly).
 MAX_DESIGNS = 10_000_000
-
-
-class SpecError(ValueError):
-    """An invalid study spec; the message names the field and the fix."""
 
 
 @dataclass(frozen=True)
