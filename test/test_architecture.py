@@ -11,7 +11,7 @@ import pkgutil
 import pytest
 
 import dea_ros
-from dea_ros import cli
+from dea_ros.cli import program
 from dea_ros.errors import ContinuationError, DeaRosError, DeaRosWarning
 
 
@@ -19,6 +19,8 @@ def package_modules():
     """Every importable module of dea_ros (modules needing rclpy are skipped where it is missing)."""
     found = []
     for info in pkgutil.walk_packages(dea_ros.__path__, "dea_ros."):
+        if info.name.endswith(".__main__"):  # runs a program when imported
+            continue
         try:
             found.append(importlib.import_module(info.name))
         except ImportError as exc:  # rclpy, uldaq, ... not installed here
@@ -71,7 +73,7 @@ def test_the_cli_turns_any_package_error_into_exit_2(monkeypatch, capsys):
     def failing(args):
         raise ContinuationError("the branch could not be followed (step size underflow)")
 
-    parser = cli.build_parser()
+    parser = program.build_parser()
     original = parser.parse_args
 
     def parse_args(argv=None):
@@ -79,9 +81,9 @@ def test_the_cli_turns_any_package_error_into_exit_2(monkeypatch, capsys):
         args.func = failing
         return args
 
-    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    monkeypatch.setattr(program, "build_parser", lambda: parser)
     monkeypatch.setattr(parser, "parse_args", parse_args)
-    assert cli.main(["equilibrium", "--membrane", "A2", "--voltage", "0"]) == 2
+    assert program.main(["equilibrium", "--membrane", "A2", "--voltage", "0"]) == 2
     err = capsys.readouterr().err
     assert "dea-ros equilibrium: error: the branch could not be followed" in err
     assert "Traceback" not in err

@@ -72,7 +72,7 @@ def node_parameters_from_file(path: Path, node_name: str) -> Dict[str, Any]:
 
 
 def _check_amplifier(values: Mapping[str, Any], query_board: Callable[..., Any]):
-    from .hardware.amplifier_backends import (
+    from ..hardware.amplifier_backends import (
         AmplifierBackendError, amplifier_config_from_parameters, describe_amplifier_rig)
 
     config = amplifier_config_from_parameters(values)  # ValueError: invalid in itself -> exit 2
@@ -91,8 +91,8 @@ def _check_amplifier(values: Mapping[str, Any], query_board: Callable[..., Any])
 
 
 def _check_laser(values: Mapping[str, Any], describe_sensor: Callable[..., Any]):
-    from .hardware.ild1320_protocol import LaserSensorExpectation
-    from .hardware.laser import SensorError
+    from ..hardware.ild1320_protocol import LaserSensorExpectation
+    from ..hardware.laser import SensorError
 
     backend = str(values.get("backend", "ild1320"))
     if backend != "ild1320":
@@ -118,9 +118,9 @@ def check_rig(amplifier_values: Optional[Mapping[str, Any]], laser_values: Optio
     invalid in itself.
     """
     if query_board is None:
-        from .hardware.amplifier_backends import query_uldaq_board as query_board
+        from ..hardware.amplifier_backends import query_uldaq_board as query_board
     if describe_sensor is None:
-        from .hardware.ild1320_sensor import describe_ild1320 as describe_sensor
+        from ..hardware.ild1320_sensor import describe_ild1320 as describe_sensor
     report = RigCheckReport()
     if amplifier_values is not None:
         lines, mismatches = _check_amplifier(amplifier_values, query_board)
@@ -144,7 +144,7 @@ def _overrides(pairs: List[str], option: str) -> Dict[str, Any]:
 
 
 def cmd_rig_check(args) -> int:
-    from .model.parameters import config_dir
+    from ..model.parameters import config_dir
 
     def values(skip: bool, params_file: Optional[str], default_name: str, node: str, sets: List[str], option: str):
         if skip:

@@ -1,0 +1,245 @@
+"""``dea-ros rig``: bring up the whole rig on mock hardware where only pip is available.
+
+* ``dea-ros rig up``: mock_hardware_node, amplifier_node (autostarted), model_node and, in real
+  time, laser_sensor_node reading the emulated ILD1320 over its pseudo-terminal; until Ctrl-C.
+* ``dea-ros rig demo``: the main job. The same rig in simulated time (the mock publishes
+  ``/clock`` at ``--speed`` times real time, every node runs with ``use_sim_time``), plus
+  identifier_node running a protocol: bag -> experiments -> identified parameters -> report.
+  ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
+  Ends by printing where the bag, the parameters and the plots are.
+
+Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
+as ``ros2 run`` would start it; Ctrl-C stops them in order (the amplifier ramps to 0 V first).
+On a lab PC with ROS 2 the launch files in ``launch/`` do the same.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from .rig_check import register as register_check
+
+__all__ = ["register", "RigProcesses"]
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _ros_args(params: dict) -> list[str]:
+    out = ["--ros-args"]
+    for key, value in params.items():
+        if isinstance(value, bool):
+            value = "true" if value else "false"
+        out += ["-p", f"{key}:={value}"]
+    return out
+
+
+class RigProcesses:
+    """Start/stop node processes; their output is prefixed with the node name (or quiet)."""
+
+    def __init__(self, namespace: str = "/dea", quiet: bool = False, log_dir: Path | None = None):
+        self.namespace = namespace
+        self.quiet = quiet
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.env = dict(os.environ)
+        self.env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+        self.env["PYTHONUNBUFFERED"] = "1"
+
+    def start(self, node: str, params: dict) -> subprocess.Popen:
+        cmd = [sys.executable, "-m", f"dea_ros.nodes.{node}"] + _ros_args(params) + \
+            ["-r", f"__ns:={self.namespace}"]
+        proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True)
+        self.procs[node] = proc
+        log = open(self.log_dir / f"{node}.log", "w") if self.log_dir else None  # noqa: SIM115
+
+        def pump():
+            for line in proc.stdout:
+                if log:
+                    log.write(line)
+                    log.flush()
+                if not self.quiet or node == "identifier_node" or "ERROR" in line:
+                    print(f"[{node}] {line.rstrip()}", flush=True)
+            if log:
+                log.close()
+
+        threading.Thread(target=pump, daemon=True).start()
+        return proc
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """SIGINT in reverse start order (the amplifier ramps to 0 V), then SIGKILL stragglers."""
+        for name in reversed(list(self.procs)):
+            proc = self.procs[name]
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+                try:
+                    proc.wait(timeout=timeout_s)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+    def check_alive(self) -> str | None:
+        for name, proc in self.procs.items():
+            if proc.poll() is not None and name != "identifier_node":
+                return f"{name} exited with code {proc.returncode}"
+        return None
+
+
+def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
+              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6) -> None:
+    port = _free_udp_port()
+    mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
+            "sample_rate_hz": laser_rate_hz}
+    if sim_time:
+        # the clock waits for the identifier's tick and for its command to reach the amplifier
+        # (identifier_node command_trigger applied_voltage): every command applied one update later
+        mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
+                    lockstep_topics="[identifier_node/tick_done, amplifier_node/command_received]")
+    else:
+        link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
+        mock.update(laser_output="emulator", laser_port=link)
+    rig.start("mock_hardware_node", mock)
+    time.sleep(1.0)
+    common = {"use_sim_time": sim_time}
+    rig.start("amplifier_node", {**common, "params_file": membrane, "backend": "mock", "mock_port": port,
+                                 "autostart": True, "update_rate_hz": update_rate_hz,
+                                 "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
+                                 "watchdog_timeout_s": 0.5})
+    rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
+    if not sim_time:
+        rig.start("laser_sensor_node", {"port": f"/tmp/dea_ros_mock_laser_{os.getpid()}", "zero_offset_m": 0.002,
+                                        "measuring_rate_hz": 2000.0})
+
+
+def cmd_rig_up(args) -> int:
+    rig = RigProcesses()
+    start_rig(rig, args.membrane, sim_time=False, speed=1.0, laser_rate_hz=2000.0, update_rate_hz=1000.0)
+    print("rig on mock hardware is up: topics /dea/voltage_cmd, /dea/voltage, /dea/displacement, "
+          "/dea/displacement_predicted. Ctrl-C to stop.", flush=True)
+    try:
+        while True:
+            problem = rig.check_alive()
+            if problem:
+                print(f"dea-ros rig: {problem}", file=sys.stderr)
+                return 1
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        rig.stop()
+
+
+def resolve_true_params(value: str, membrane: str) -> str:
+    """The simulated membrane: 'same', a path, or a path relative to the package's config/."""
+    from ..model.parameters import config_dir
+
+    if value in (None, "", "same"):
+        return membrane
+    if Path(value).is_file():
+        return str(Path(value).resolve())
+    candidate = config_dir() / value
+    if candidate.is_file():
+        return str(candidate)
+    raise FileNotFoundError(f"--true-params: no file {value!r} (nor {candidate})")
+
+
+def cmd_rig_demo(args) -> int:
+    out = Path(args.out).resolve()
+    args.true_params = resolve_true_params(args.true_params, args.membrane)
+    run_name = args.run_name or time.strftime("demo_%Y%m%d_%H%M%S")
+    run_dir = out / run_name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "logs").mkdir(exist_ok=True)
+    rig = RigProcesses(quiet=not args.verbose, log_dir=run_dir / "logs")
+    t_start = time.monotonic()
+    print(f"dea-ros rig demo: mock rig simulating {args.true_params}; identification from the nominal "
+          f"{args.membrane}; protocol '{args.protocol}', simulated time up to x{args.speed:g}; "
+          f"logs in {run_dir / 'logs'}", flush=True)
+    try:
+        start_rig(rig, args.membrane, sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
+                  update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise)
+        ident = rig.start("identifier_node", {
+            "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
+            "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
+            "membrane": args.membrane,
+            "identify": not args.no_identify, "rosbag2_format": args.rosbag2_format,
+        })
+        while ident.poll() is None:
+            problem = rig.check_alive()
+            if problem:
+                print(f"dea-ros rig demo: {problem}; see {run_dir / 'logs'}", file=sys.stderr)
+                ident.send_signal(signal.SIGINT)
+                ident.wait(timeout=30)
+                return 1
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        print("dea-ros rig demo: interrupted; the bag keeps what was recorded", file=sys.stderr)
+        return 130
+    finally:
+        rig.stop()
+    summary_file = run_dir / "summary.json"
+    if not summary_file.is_file():
+        print(f"dea-ros rig demo: no summary written (identifier exit code {ident.returncode}); "
+              f"see {run_dir / 'logs'}", file=sys.stderr)
+        return 1
+    summary = json.loads(summary_file.read_text())
+    wall = time.monotonic() - t_start
+    if args.json:
+        print(json.dumps({**summary, "wall_time_s": wall}, indent=2, default=str))
+    else:
+        print()
+        print(f"done in {wall:.0f} s (wall clock); state: {summary.get('state')}")
+        if summary.get("error"):
+            print(f"error: {summary['error']}")
+        print(f"  bag:        {summary.get('bag')}")
+        for key, label in (("params_file", "parameters"), ("report_file", "report"), ("report_dir", "plots")):
+            if summary.get(key):
+                print(f"  {label + ':':<11} {summary[key]}")
+        for line in summary.get("headline", []):
+            print(f"  {line}")
+    return 0 if summary.get("state") == "done" and not summary.get("error") else 1
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("rig", help="the whole rig on mock hardware (up, demo)")
+    sub = p.add_subparsers(dest="rig_command", metavar="ACTION")
+    sub.required = True
+    up = sub.add_parser("up", help="start the mock rig in real time until Ctrl-C")
+    up.add_argument("--membrane", default="A2", help="preset or parameters YAML")
+    up.set_defaults(func=cmd_rig_up)
+    demo = sub.add_parser("demo", help="main job: protocol on the mock rig -> bag -> identified parameters + plots")
+    demo.add_argument("--membrane", default="A2", help="membrane of the rig (preset or YAML; geometry for the fit)")
+    demo.add_argument("--true-params", default="rig/mock_membrane.yaml",
+                      help="parameters of the simulated membrane: a YAML (relative paths: in the package's "
+                           "config/), or 'same' for --membrane (default: rig/mock_membrane.yaml, A2 with "
+                           "different material parameters)")
+    demo.add_argument("--protocol", default="paper", help="protocol in config/protocols (paper, quick) or a YAML")
+    demo.add_argument("--speed", type=float, default=3.0,
+                      help="upper bound of simulated seconds per wall-clock second (lockstep may be slower)")
+    demo.add_argument("--rate", type=float, default=250.0,
+                      help="command/amplifier/clock rate, Hz (simulated; sines are fitted against the applied "
+                           "waveform, so its zero-order hold does not bias the fit)")
+    demo.add_argument("--laser-rate", type=float, default=500.0, help="displacement sample rate, Hz (simulated)")
+    demo.add_argument("--noise", type=float, default=1e-6, help="laser noise sigma, m")
+    demo.add_argument("--out", default="runs", help="folder of the runs")
+    demo.add_argument("--run-name", help="folder name of this run (default: demo_<date>)")
+    demo.add_argument("--no-identify", action="store_true", help="record only")
+    demo.add_argument("--rosbag2-format", choices=("auto", "humble", "jazzy"), default="auto",
+                      help="bag format: humble (metadata version 5: Humble and newer read it), jazzy (version 9: "
+                           "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
+                           "`dea-ros bag convert` changes it later")
+    demo.add_argument("--verbose", action="store_true", help="print every node's log")
+    demo.add_argument("--json", action="store_true", help="print the summary as JSON")
+    demo.set_defaults(func=cmd_rig_demo)
+    register_check(sub)
