@@ -187,6 +187,17 @@ class BagWriter:
         self._pending_since: float | None = None
         name = self._path.name or "rosbag2"
         self._mcap_name = f"{name}_0.mcap"
+        self._open_storage(compression, chunk_size_bytes, compression_level)
+        self._stop_flusher = threading.Event()
+        self._flusher: threading.Thread | None = None
+        if flush_period_s is not None:
+            self._flusher = threading.Thread(
+                target=self._flush_loop, name=f"BagWriter flusher {self._path.name}", daemon=True
+            )
+            self._flusher.start()
+
+    def _open_storage(self, compression: str, chunk_size_bytes: int, compression_level: int | None) -> None:
+        """Create the ``.mcap`` file and write its Header and ``rosbag2`` records (flushed)."""
         try:
             self._path.mkdir(parents=True, exist_ok=True)
             # Unbuffered: every record/chunk the MCAP writer emits goes straight to the OS.
@@ -217,13 +228,6 @@ class BagWriter:
         except BaseException:
             self._file.close()
             raise
-        self._stop_flusher = threading.Event()
-        self._flusher: threading.Thread | None = None
-        if flush_period_s is not None:
-            self._flusher = threading.Thread(
-                target=self._flush_loop, name=f"BagWriter flusher {self._path.name}", daemon=True
-            )
-            self._flusher.start()
 
     # -- properties --------------------------------------------------------------------------
     @property
@@ -296,14 +300,7 @@ class BagWriter:
                 "(rosbag2 stores fully qualified names)"
             )
         canonical = normalize_type_name(type_name)
-        if qos is None:
-            profiles = [command_qos()]
-        elif isinstance(qos, QosProfile):
-            profiles = [qos]
-        else:
-            profiles = list(qos)
-            if not all(isinstance(p, QosProfile) for p in profiles):
-                raise BagError(f"qos of topic {name}: expected QosProfile or a list of them, got {qos!r}")
+        profiles = _offered_profiles(name, qos)
         with self._lock:
             self._check_open()
             existing = self._topics.get(name)
@@ -314,30 +311,35 @@ class BagWriter:
                         f"{existing.type_name} with QoS {existing.qos}; a topic has one type and QoS"
                     )
                 return
-            if schema_text is None:
-                definition = self._definitions.full_definition(canonical)
-                text, encoding, known_hash = definition.text, definition.encoding, definition.type_hash
-            else:
-                text, encoding, known_hash = schema_text, "ros2msg", ""
-            resolved_hash = known_hash if type_hash is None else type_hash
-            if resolved_hash and not resolved_hash.startswith("RIHS01_"):
-                raise BagError(f"type_hash {resolved_hash!r} of topic {name} must start with 'RIHS01_'")
-            schema_id = self._schema_ids.get(canonical)
-            if schema_id is None:
-                schema_id = self._mcap.add_schema(canonical, encoding, text.encode("utf-8"))
-                self._schema_ids[canonical] = schema_id
-            channel_metadata = {"offered_qos_profiles": serialize_qos_profiles(profiles, self._version)}
-            if resolved_hash:
-                # Jazzy's MCAPStorage::create_topic writes it; Humble's reader ignores channel
-                # metadata other than offered_qos_profiles, so Humble bags keep it too (lossless
-                # conversion between the formats).
-                channel_metadata["topic_type_hash"] = resolved_hash
-            channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
-            self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
-            try:
-                self._mcap.flush(fsync=self._fsync)
-            except OSError as exc:
-                raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
+            self._add_channel_locked(name, canonical, profiles, type_hash, schema_text)
+
+    def _add_channel_locked(self, name: str, canonical: str, profiles: list[QosProfile], type_hash: str | None,
+                            schema_text: str | None) -> None:
+        """Write the topic's schema (once per type) and channel records, flushed (lock held)."""
+        if schema_text is None:
+            definition = self._definitions.full_definition(canonical)
+            text, encoding, known_hash = definition.text, definition.encoding, definition.type_hash
+        else:
+            text, encoding, known_hash = schema_text, "ros2msg", ""
+        resolved_hash = known_hash if type_hash is None else type_hash
+        if resolved_hash and not resolved_hash.startswith("RIHS01_"):
+            raise BagError(f"type_hash {resolved_hash!r} of topic {name} must start with 'RIHS01_'")
+        schema_id = self._schema_ids.get(canonical)
+        if schema_id is None:
+            schema_id = self._mcap.add_schema(canonical, encoding, text.encode("utf-8"))
+            self._schema_ids[canonical] = schema_id
+        channel_metadata = {"offered_qos_profiles": serialize_qos_profiles(profiles, self._version)}
+        if resolved_hash:
+            # Jazzy's MCAPStorage::create_topic writes it; Humble's reader ignores channel
+            # metadata other than offered_qos_profiles, so Humble bags keep it too (lossless
+            # conversion between the formats).
+            channel_metadata["topic_type_hash"] = resolved_hash
+        channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
+        self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
+        try:
+            self._mcap.flush(fsync=self._fsync)
+        except OSError as exc:
+            raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
 
     def write_serialized(
         self,
@@ -538,6 +540,7 @@ class BagWriter:
                         return  # poisoned: raised in the recording thread by its next write/flush
 
     def _bag_info(self) -> dict[str, Any]:
+        """The bag's ``metadata.yaml`` mapping as written so far."""
         count = self._mcap.message_count
         if count:
             start, end = self._mcap.message_start_time, self._mcap.message_end_time
@@ -556,7 +559,20 @@ class BagWriter:
         )
 
 
+def _offered_profiles(topic: str, qos: QosProfile | Sequence[QosProfile] | None) -> list[QosProfile]:
+    """The list of offered QoS profiles of ``add_topic`` (default: :func:`~dea_ros.bag.qos.command_qos`)."""
+    if qos is None:
+        return [command_qos()]
+    if isinstance(qos, QosProfile):
+        return [qos]
+    profiles = list(qos)
+    if not all(isinstance(p, QosProfile) for p in profiles):
+        raise BagError(f"qos of topic {topic}: expected QosProfile or a list of them, got {qos!r}")
+    return profiles
+
+
 def _timestamp(value: Any, name: str) -> int:
+    """A timestamp argument as an integer number of ns in [0, 2**64), else :class:`BagError`."""
     try:
         integer = int(value)
     except (TypeError, ValueError):
