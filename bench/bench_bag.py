@@ -24,7 +24,8 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Callable, List
 
-from dea_ros.bag import BagReader, BagWriter, sensor_data_qos
+from dea_ros.bag import BagReader, BagWriter, MessageDefinitionStore, sensor_data_qos
+from dea_ros.bag.message_codec import message_encoder
 
 TOPIC = "/dea/range"
 TYPE = "sensor_msgs/msg/Range"
@@ -46,12 +47,8 @@ def range_dict(i: int) -> dict:
 
 def serialized_ranges(count: int) -> List[bytes]:
     """``count`` distinct CDR-encoded Range messages (same encoder the bag's write() uses)."""
-    from mcap_ros2._dynamic import serialize_dynamic
-
-    from dea_ros.bag import MessageDefinitionStore
-
     definition = MessageDefinitionStore().full_definition(TYPE)
-    encode = serialize_dynamic(TYPE, definition.text)[TYPE]
+    encode = message_encoder(TYPE, definition.text)
     return [encode(range_dict(i)) for i in range(count)]
 
 
@@ -76,6 +73,7 @@ def run_once(directory: Path, messages: int, compression: str, write: Callable) 
 
 
 def cpu_model() -> str:
+    """The CPU model name (``/proc/cpuinfo``), else what ``platform`` says."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -86,6 +84,7 @@ def cpu_model() -> str:
 
 
 def nproc() -> int:
+    """CPUs this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux

@@ -68,11 +68,47 @@ Opening the bags with ROS tools
   ``mcap_ros2`` on the ``.mcap`` file.
 * A killed recording: run ``python -c "from dea_ros.bag import recover_bag; recover_bag('<dir>')"``
   first (``ros2 bag reindex`` cannot repair a file without footer).
-"""
 
+Modules (one concept each; imports point down this list, from the bag API to the MCAP records)
+=============================================================================================
+
+Bags (rosbag2 directories):
+
+* ``writer``: :class:`BagWriter`, :func:`check_writable`, the rosbag2 Metadata record names.
+* ``reader``: :class:`BagReader` (summary-based for complete files, scan-based for truncated ones).
+* ``recover``: :func:`recover_bag` and its :class:`RecoveryReport`.
+* ``convert``: :func:`convert_bag` (Humble <-> Jazzy format).
+* ``commands``: the ``dea-ros bag info|recover|convert`` command line.
+
+What a bag stores besides messages:
+
+* ``metadata``: ``metadata.yaml`` (build, dump, load, validate; format <-> version).
+* ``qos``: QoS profiles as rosbag2 stores them.
+* ``definitions``: message definitions (``ros2msg`` schema texts) and type hashes.
+* ``vendored_messages``: the ``.msg`` texts used when no ROS installation provides them.
+* ``message_codec``: CDR encoding/decoding from a bag's schema text.
+* ``files``: atomic text files, directory fsync, disk-full errors.
+
+MCAP files (no ROS, no rosbag2 conventions):
+
+* ``mcap_writer``: the chunked writer (flush on demand; resume an unfinished file).
+* ``mcap_scan``: :func:`~dea_ros.bag.mcap_scan.scan_mcap`, the record-by-record scan of a
+  possibly truncated or damaged file.
+* ``mcap_summary_check``: the summary section and footer checked against the scanned data.
+* ``mcap_finish``: finishing an unfinished file where it lies (full disk).
+* ``mcap_contents``: :class:`~dea_ros.bag.mcap_contents.McapScan` and ``ChunkInfo``, what a scan found.
+* ``mcap_records``: the record format: constants, parsing of one record and of a chunk's content.
+* ``mcap_compression``: chunk compression (zstd, lz4, none).
+
+TRANSITIONAL re-exports (removed in issue 24 phase 2): ``mcap_io`` (now the ``mcap_*``
+modules) and ``errors`` (now :mod:`dea_ros.errors`). ``extract`` (bag -> experiments) belongs to
+:mod:`dea_ros.identify`.
+"""
+from __future__ import annotations
+
+from ..errors import BagError, BagTruncatedWarning, BagWarning
 from .convert import convert_bag
 from .definitions import MessageDefinition, MessageDefinitionStore, default_search_prefixes
-from .errors import BagError, BagTruncatedWarning, BagWarning
 from .metadata import default_rosbag2_format, resolve_rosbag2_format
 from .qos import (
     INFINITE_DURATION,

@@ -7,38 +7,28 @@ corrupt. ``bag recover`` refuses damaged data unless ``--salvage`` and says when
 """
 from __future__ import annotations
 
+import argparse
 import json
+import sys
+import warnings
+from typing import Any
+
+from .convert import convert_bag
+from .reader import BagReader
+from .recover import recover_bag
 
 __all__ = ["register"]
 
 
-def cmd_bag_info(args) -> int:
-    import sys
-    import warnings
-
-    from . import BagReader
-
+def cmd_bag_info(args: argparse.Namespace) -> int:
+    """``dea-ros bag info BAG [--json] [--no-verify]``: what the bag holds, and its corruption."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         bag = BagReader(args.bag)
     for warning in caught:
         print(f"dea-ros bag info: warning: {warning.message}", file=sys.stderr)
     with bag:
-        topics = bag.topics()
-        meta = bag.metadata()
-        out = {
-            "path": str(bag.path),
-            "files": [str(f) for f in bag.files],
-            "messages": bag.message_count,
-            "start_time_ns": bag.start_time_ns,
-            "end_time_ns": bag.end_time_ns,
-            "duration_s": (bag.end_time_ns - bag.start_time_ns) * 1e-9 if bag.message_count else 0.0,
-            "truncated": bag.truncated,
-            "topics": {name: {"type": t.type, "messages": t.message_count,
-                              "qos": [q.reliability + "/" + q.durability + f"/depth {q.depth}" for q in t.qos_profiles]}
-                       for name, t in topics.items()},
-            "metadata": sorted(meta),
-        }
+        out = _bag_information(bag)
         corruption = [] if args.no_verify else bag.verify()
         out["corruption"] = corruption
     if args.json:
@@ -53,9 +43,27 @@ def cmd_bag_info(args) -> int:
     return _report_corruption(args.bag, corruption)
 
 
-def _report_corruption(bag, corruption) -> int:
-    import sys
+def _bag_information(bag: BagReader) -> dict[str, Any]:
+    """What ``bag info`` reports (its JSON, without the corruption list)."""
+    topics = bag.topics()
+    meta = bag.metadata()
+    return {
+        "path": str(bag.path),
+        "files": [str(f) for f in bag.files],
+        "messages": bag.message_count,
+        "start_time_ns": bag.start_time_ns,
+        "end_time_ns": bag.end_time_ns,
+        "duration_s": (bag.end_time_ns - bag.start_time_ns) * 1e-9 if bag.message_count else 0.0,
+        "truncated": bag.truncated,
+        "topics": {name: {"type": t.type, "messages": t.message_count,
+                          "qos": [q.reliability + "/" + q.durability + f"/depth {q.depth}" for q in t.qos_profiles]}
+                   for name, t in topics.items()},
+        "metadata": sorted(meta),
+    }
 
+
+def _report_corruption(bag: str, corruption: list[str]) -> int:
+    """Print the corruption found (if any) to stderr; the exit status (2 when corrupt)."""
     if not corruption:
         return 0
     print(f"dea-ros bag info: error: bag {bag} is CORRUPT ({len(corruption)} problem(s)):", file=sys.stderr)
@@ -65,23 +73,22 @@ def _report_corruption(bag, corruption) -> int:
     return 2
 
 
-def cmd_bag_recover(args) -> int:
-    from . import recover_bag
-
+def cmd_bag_recover(args: argparse.Namespace) -> int:
+    """``dea-ros bag recover BAG [--salvage] [--in-place]``: print what the recovery did."""
     report = recover_bag(args.bag, salvage=args.salvage, in_place=args.in_place)
     print(report.summary())
     return 0
 
 
-def cmd_bag_convert(args) -> int:
-    from .convert import convert_bag
-
+def cmd_bag_convert(args: argparse.Namespace) -> int:
+    """``dea-ros bag convert BAG --to FORMAT [--out DIR]``: print where the converted bag is."""
     target = convert_bag(args.bag, args.to, args.out)
     print(f"{target}: {args.bag} in the {args.to} rosbag2 format")
     return 0
 
 
-def register(subparsers) -> None:
+def register(subparsers: Any) -> None:
+    """Add the ``bag`` command group to the ``dea-ros`` parser's subparsers."""
     p = subparsers.add_parser("bag", help="inspect, recover or convert an MCAP bag")
     sub = p.add_subparsers(dest="bag_command", metavar="ACTION")
     sub.required = True

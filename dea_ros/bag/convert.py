@@ -10,40 +10,37 @@ text, type hash, QoS profile and user Metadata record is kept, and ``custom_data
 ``metadata.yaml``, channels, schemas, records and messages.
 """
 
-from pathlib import Path
-from typing import Dict, List, Optional, Union
+from __future__ import annotations
 
-from .errors import BagError
-from .metadata import METADATA_FILENAME, load_metadata_yaml, metadata_version_for_format
+from pathlib import Path
+from typing import Any, Mapping
+
+from mcap.reader import make_reader
+from mcap.records import Channel, Schema
+
+from ..errors import BagError
+from .metadata import CUSTOM_DATA_RECORD, ROSBAG2_METADATA_RECORD, TopicSummary, metadata_version_for_format
 from .qos import parse_qos_profiles
 from .reader import BagReader
-from .writer import CUSTOM_DATA_RECORD, ROSBAG2_METADATA_RECORD, BagWriter
+from .writer import BagWriter
 
 __all__ = ["convert_bag"]
 
 
-def _storage_files(bag_dir: Path) -> List[Path]:
-    metadata_file = bag_dir / METADATA_FILENAME
-    if metadata_file.is_file():
-        return [bag_dir / name for name in load_metadata_yaml(metadata_file)["relative_file_paths"]]
-    return sorted(bag_dir.glob("*.mcap"))
-
-
 def convert_bag(
-    source: Union[str, Path],
+    source: str | Path,
     rosbag2_format: str,
-    out: Optional[Union[str, Path]] = None,
+    out: str | Path | None = None,
 ) -> Path:
     """Write ``source`` as a new bag in ``rosbag2_format`` (``"humble"`` or ``"jazzy"``).
 
-    :param source: bag directory (complete: run :func:`~dea_ros.bag.recover_bag` on a killed one).
-    :param rosbag2_format: target format.
-    :param out: new bag directory (must not exist or be empty); default ``<source>_<format>``.
-    :returns: the new bag directory.
-    :raises BagError: unknown format, unreadable or truncated source, existing output.
-    """
-    from mcap.reader import make_reader
+    * ``source``: bag directory (complete: run :func:`~dea_ros.bag.recover_bag` on a killed one).
+    * ``rosbag2_format``: target format.
+    * ``out``: new bag directory (must not exist or be empty); default ``<source>_<format>``.
 
+    Returns the new bag directory. Raises :class:`~dea_ros.errors.BagError` for an unknown
+    format, an unreadable or truncated source, an existing output.
+    """
     metadata_version_for_format(rosbag2_format)  # a clear error for a bad --to first
     source = Path(source).expanduser()
     if not source.is_dir():
@@ -56,16 +53,8 @@ def convert_bag(
             raise BagError(f"{source} is truncated (the recorder was killed); run `dea-ros bag recover {source}` first")
         bag_info = reader.bag_metadata or {}
         records = reader.metadata_records()
-
-    custom_data: Dict[str, str] = dict(bag_info.get("custom_data") or {})
-    ros_distro = bag_info.get("ros_distro") or ""
-    for name, data in records:
-        if name == ROSBAG2_METADATA_RECORD and data.get("ROS_DISTRO") and not ros_distro:
-            ros_distro = data["ROS_DISTRO"]
-        elif name == CUSTOM_DATA_RECORD and not custom_data:
-            custom_data = dict(data)
-    yaml_topics = bag_info.get("topics", {})
-
+        storage_files = reader.files
+    ros_distro, custom_data = _distro_and_custom_data(bag_info, records)
     with BagWriter(
         target,
         rosbag2_format=rosbag2_format,
@@ -73,34 +62,55 @@ def convert_bag(
         custom_data=custom_data,
         min_free_bytes=0,
     ) as writer:
-        for file_path in _storage_files(source):
-            with open(file_path, "rb") as handle:
-                mcap_reader = make_reader(handle)
-                summary = mcap_reader.get_summary()
-                channels = summary.channels if summary is not None else {}
-                schemas = summary.schemas if summary is not None else {}
-                registered = set(writer.topic_message_counts())
-                for channel in sorted(channels.values(), key=lambda c: c.id):
-                    if channel.topic in registered:
-                        continue
-                    schema = schemas.get(channel.schema_id)
-                    if schema is None or schema.encoding != "ros2msg" or channel.message_encoding != "cdr":
-                        raise BagError(
-                            f"cannot convert topic {channel.topic} of {file_path}: only cdr messages with "
-                            "ros2msg schemas are rosbag2 bags"
-                        )
-                    try:
-                        qos = parse_qos_profiles(channel.metadata.get("offered_qos_profiles", ""))
-                    except ValueError as exc:
-                        raise BagError(f"{file_path}: channel {channel.topic}: {exc}") from None
-                    type_hash = channel.metadata.get("topic_type_hash", "")
-                    if not type_hash and channel.topic in yaml_topics:
-                        type_hash = yaml_topics[channel.topic].type_description_hash
-                    writer.add_topic(channel.topic, schema.name, qos, type_hash=type_hash,
-                                     schema_text=schema.data.decode("utf-8"))
-                for record in mcap_reader.iter_metadata():
-                    if record.name not in (ROSBAG2_METADATA_RECORD, CUSTOM_DATA_RECORD):
-                        writer.add_metadata(record.name, dict(record.metadata))
-                for _schema, channel, message in mcap_reader.iter_messages(log_time_order=False):
-                    writer.write_serialized(channel.topic, message.data, message.log_time, message.publish_time)
+        for file_path in storage_files:
+            _copy_file(file_path, writer, bag_info.get("topics", {}))
     return target
+
+
+def _distro_and_custom_data(bag_info: Mapping[str, Any], records: list[tuple[str, dict[str, str]]],
+                            ) -> tuple[str, dict[str, str]]:
+    """The recorded ROS distro and ``custom_data``: from metadata.yaml, else from the MCAP records."""
+    custom_data: dict[str, str] = dict(bag_info.get("custom_data") or {})
+    ros_distro = bag_info.get("ros_distro") or ""
+    for name, data in records:
+        if name == ROSBAG2_METADATA_RECORD and data.get("ROS_DISTRO") and not ros_distro:
+            ros_distro = data["ROS_DISTRO"]
+        elif name == CUSTOM_DATA_RECORD and not custom_data:
+            custom_data = dict(data)
+    return ros_distro, custom_data
+
+
+def _copy_file(file_path: Path, writer: BagWriter, yaml_topics: Mapping[str, TopicSummary]) -> None:
+    """Copy one storage file: its topics, user Metadata records and every message byte for byte."""
+    with open(file_path, "rb") as handle:
+        mcap_reader = make_reader(handle)
+        summary = mcap_reader.get_summary()
+        channels = summary.channels if summary is not None else {}
+        schemas = summary.schemas if summary is not None else {}
+        registered = set(writer.topic_message_counts())
+        for channel in sorted(channels.values(), key=lambda c: c.id):
+            if channel.topic not in registered:
+                _add_topic(writer, file_path, channel, schemas.get(channel.schema_id), yaml_topics)
+        for record in mcap_reader.iter_metadata():
+            if record.name not in (ROSBAG2_METADATA_RECORD, CUSTOM_DATA_RECORD):
+                writer.add_metadata(record.name, dict(record.metadata))
+        for _schema, channel, message in mcap_reader.iter_messages(log_time_order=False):
+            writer.write_serialized(channel.topic, message.data, message.log_time, message.publish_time)
+
+
+def _add_topic(writer: BagWriter, file_path: Path, channel: Channel, schema: Schema | None,
+               yaml_topics: Mapping[str, TopicSummary]) -> None:
+    """Register a channel's topic with its schema text, QoS and type hash (metadata.yaml's if the channel has none)."""
+    if schema is None or schema.encoding != "ros2msg" or channel.message_encoding != "cdr":
+        raise BagError(
+            f"cannot convert topic {channel.topic} of {file_path}: only cdr messages with "
+            "ros2msg schemas are rosbag2 bags"
+        )
+    try:
+        qos = parse_qos_profiles(channel.metadata.get("offered_qos_profiles", ""))
+    except ValueError as exc:
+        raise BagError(f"{file_path}: channel {channel.topic}: {exc}") from None
+    type_hash = channel.metadata.get("topic_type_hash", "")
+    if not type_hash and channel.topic in yaml_topics:
+        type_hash = yaml_topics[channel.topic].type_description_hash
+    writer.add_topic(channel.topic, schema.name, qos, type_hash=type_hash, schema_text=schema.data.decode("utf-8"))

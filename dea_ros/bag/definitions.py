@@ -6,7 +6,7 @@ Lookup order for the ``.msg`` text of ``pkg/msg/Type``:
    ``AMENT_PREFIX_PATH`` (a sourced ROS 2), then ``sys.prefix`` (the PyPI ROS wheels install
    ``share/<pkg>/msg/*.msg`` into the virtualenv prefix);
 2. ``extra_definitions`` given to :class:`MessageDefinitionStore`;
-3. the vendored texts in :mod:`dea_ros.bag._vendored_msgs` (Kilted copies of the rig's types).
+3. the vendored texts in :mod:`dea_ros.bag.vendored_messages` (Kilted copies of the rig's types).
 
 The full schema text is built exactly like rosbag2's ``LocalMessageDefinitionSource::get_full_text``
 (``rosbag2_cpp/src/rosbag2_cpp/message_definitions/local_message_definition_source.cpp``): the
@@ -19,16 +19,17 @@ that rosidl installs next to the ``.msg`` (``type_hashes[]``), only when the ``.
 from that installation. Vendored definitions carry no hash: the bag then stores an empty
 ``type_description_hash`` and no ``topic_type_hash`` channel metadata, which every reader accepts.
 """
+from __future__ import annotations
 
 import json
 import os
 import re
 import sys
 from pathlib import Path
-from typing import Dict, List, Mapping, NamedTuple, Optional, Sequence, Set, Tuple, Union
+from typing import Mapping, NamedTuple, Sequence
 
-from .errors import BagError
-from ._vendored_msgs import VENDORED_MSG_TEXTS
+from ..errors import BagError
+from .vendored_messages import VENDORED_MSG_TEXTS
 
 __all__ = [
     "MessageDefinition",
@@ -75,14 +76,14 @@ def normalize_type_name(type_name: str) -> str:
     return f"{package}/{namespace or 'msg'}/{name}"
 
 
-def default_search_prefixes() -> List[Path]:
+def default_search_prefixes() -> list[Path]:
     """Install prefixes searched for ``share/<pkg>/msg``: ``AMENT_PREFIX_PATH`` then ``sys.prefix``."""
-    prefixes: List[Path] = []
+    prefixes: list[Path] = []
     for entry in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
         if entry:
             prefixes.append(Path(entry))
     prefixes.append(Path(sys.prefix))
-    unique: List[Path] = []
+    unique: list[Path] = []
     for prefix in prefixes:
         if prefix not in unique and (prefix / "share").is_dir():
             unique.append(prefix)
@@ -92,17 +93,17 @@ def default_search_prefixes() -> List[Path]:
 class MessageDefinitionStore:
     """Resolves ``.msg`` texts, full schema texts and type hashes; caches per instance.
 
-    :param search_prefixes: install prefixes to search (default :func:`default_search_prefixes`);
-        pass ``[]`` to use only extra/vendored definitions.
-    :param extra_definitions: ``{"pkg/msg/Type": msg_text}`` for types with no installed or
-        vendored definition (e.g. custom messages when ROS is not sourced).
-    :param use_vendored: fall back to the vendored Kilted texts.
+    * ``search_prefixes``: install prefixes to search (default :func:`default_search_prefixes`);
+      pass ``[]`` to use only extra/vendored definitions.
+    * ``extra_definitions``: ``{"pkg/msg/Type": msg_text}`` for types with no installed or
+      vendored definition (e.g. custom messages when ROS is not sourced).
+    * ``use_vendored``: fall back to the vendored Kilted texts.
     """
 
     def __init__(
         self,
-        search_prefixes: Optional[Sequence[Union[str, Path]]] = None,
-        extra_definitions: Optional[Mapping[str, str]] = None,
+        search_prefixes: Sequence[str | Path] | None = None,
+        extra_definitions: Mapping[str, str] | None = None,
         use_vendored: bool = True,
     ) -> None:
         if search_prefixes is None:
@@ -111,15 +112,15 @@ class MessageDefinitionStore:
             self._prefixes = [Path(p) for p in search_prefixes]
         self._extra = {normalize_type_name(k): v for k, v in (extra_definitions or {}).items()}
         self._use_vendored = use_vendored
-        self._texts: Dict[str, Tuple[str, str]] = {}
-        self._full: Dict[str, MessageDefinition] = {}
+        self._texts: dict[str, tuple[str, str]] = {}
+        self._full: dict[str, MessageDefinition] = {}
 
     @property
-    def search_prefixes(self) -> List[Path]:
+    def search_prefixes(self) -> list[Path]:
         """The install prefixes searched, in order."""
         return list(self._prefixes)
 
-    def _installed_msg_path(self, canonical: str) -> Optional[Path]:
+    def _installed_msg_path(self, canonical: str) -> Path | None:
         package, namespace, name = canonical.split("/")
         for prefix in self._prefixes:
             candidate = prefix / "share" / package / namespace / f"{name}.msg"
@@ -127,7 +128,7 @@ class MessageDefinitionStore:
                 return candidate
         return None
 
-    def msg_text(self, type_name: str) -> Tuple[str, str]:
+    def msg_text(self, type_name: str) -> tuple[str, str]:
         """``(text of the single .msg file, source)`` for ``type_name``; ``BagError`` if unknown."""
         canonical = normalize_type_name(type_name)
         cached = self._texts.get(canonical)
@@ -177,7 +178,7 @@ class MessageDefinitionStore:
         cached = self._full.get(canonical)
         if cached is not None:
             return cached
-        seen: Set[str] = set()
+        seen: set[str] = set()
 
         def append_recursive(name: str, depth: int) -> str:
             if depth <= 0:
@@ -199,9 +200,9 @@ class MessageDefinitionStore:
         return definition
 
 
-def _parse_dependencies(text: str, package_context: str) -> List[str]:
+def _parse_dependencies(text: str, package_context: str) -> list[str]:
     """Non-primitive field types of a ``.msg`` text, sorted (rosbag2 uses a ``std::set``)."""
-    dependencies: Set[str] = set()
+    dependencies: set[str] = set()
     for match in _MSG_FIELD_TYPE_RE.finditer(text):
         field_type = match.group(1)
         if field_type in _PRIMITIVE_TYPES:

@@ -1,4 +1,4 @@
-"""Exception and warning types of :mod:`dea_ros.bag`."""
+"""TRANSITIONAL re-export (issue 24 phase 2 removes this): moved to dea_ros.errors."""
 
 from ..errors import BagError, BagTruncatedWarning, BagWarning
 

@@ -25,21 +25,24 @@ Which format: :func:`default_rosbag2_format` picks it from ``$ROS_DISTRO`` (``hu
 empty (:func:`ros_distro_for_format`: ``$ROS_DISTRO``, else the format's distro name). What each
 distro's rosbag2 requires of these files is described in ``docs/rosbag2_formats.md``.
 """
+from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Union
+from typing import Any, Mapping, Sequence
 
 import yaml
 
-from .errors import BagError
+from ..errors import BagError
 from .qos import QosProfile, parse_qos_profiles, qos_to_dict, serialize_qos_profiles
 
 __all__ = [
     "ROSBAG2_FORMAT_VERSIONS",
     "METADATA_FILENAME",
     "EMPTY_BAG_STARTING_TIME_NS",
+    "ROSBAG2_METADATA_RECORD",
+    "CUSTOM_DATA_RECORD",
     "TopicSummary",
     "FileSummary",
     "build_bag_metadata",
@@ -59,6 +62,11 @@ ROSBAG2_FORMAT_VERSIONS = {"jazzy": 9, "humble": 5}
 METADATA_FILENAME = "metadata.yaml"
 #: ``std::chrono::nanoseconds::max()``: rosbag2's starting time of a bag without messages.
 EMPTY_BAG_STARTING_TIME_NS = 2**63 - 1
+#: Name of the MCAP Metadata record holding the serialized ``metadata.yaml`` (rosbag2 convention).
+ROSBAG2_METADATA_RECORD = "rosbag2"
+#: MCAP Metadata record keeping ``custom_data`` in Humble-format bags (metadata version 5 has no
+#: ``custom_data`` field); :func:`dea_ros.bag.convert_bag` restores it when converting to Jazzy.
+CUSTOM_DATA_RECORD = "rosbag2.custom_data"
 
 
 #: ROS distributions whose rosbag2 cannot read metadata version 9 (they get the Humble format).
@@ -82,17 +90,17 @@ def format_for_metadata_version(version: int) -> str:
     return "jazzy" if version >= ROSBAG2_FORMAT_VERSIONS["jazzy"] else "humble"
 
 
-def default_rosbag2_format(ros_distro: Optional[str] = None) -> str:
+def default_rosbag2_format(ros_distro: str | None = None) -> str:
     """The format the distro's ``ros2 bag`` reads: ``"humble"`` for Humble (and Iron), else ``"jazzy"``.
 
-    :param ros_distro: distro name; default ``$ROS_DISTRO``. Unset (e.g. ROS from PyPI wheels)
-        gives ``"jazzy"``, which Jazzy, Kilted and Rolling read.
+    * ``ros_distro``: distro name; default ``$ROS_DISTRO``. Unset (e.g. ROS from PyPI wheels)
+      gives ``"jazzy"``, which Jazzy, Kilted and Rolling read.
     """
     distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
     return "humble" if distro.strip().lower() in _PRE_JAZZY_DISTROS else "jazzy"
 
 
-def resolve_rosbag2_format(rosbag2_format: Optional[str]) -> str:
+def resolve_rosbag2_format(rosbag2_format: str | None) -> str:
     """``None``/``""``/``"auto"`` -> :func:`default_rosbag2_format`; a format name is checked."""
     if rosbag2_format is None or str(rosbag2_format).strip().lower() in ("", "auto"):
         return default_rosbag2_format()
@@ -101,7 +109,7 @@ def resolve_rosbag2_format(rosbag2_format: Optional[str]) -> str:
     return name
 
 
-def ros_distro_for_format(rosbag2_format: str, ros_distro: Optional[str] = None) -> str:
+def ros_distro_for_format(rosbag2_format: str, ros_distro: str | None = None) -> str:
     """The ``ros_distro`` to record: ``ros_distro``, else ``$ROS_DISTRO``, else the format's name."""
     distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
     return distro.strip() or rosbag2_format
@@ -114,7 +122,7 @@ class TopicSummary:
     name: str
     type: str
     message_count: int = 0
-    offered_qos_profiles: List[QosProfile] = field(default_factory=list)
+    offered_qos_profiles: list[QosProfile] = field(default_factory=list)
     type_description_hash: str = ""
     serialization_format: str = "cdr"
 
@@ -134,10 +142,10 @@ def build_bag_metadata(
     version: int,
     files: Sequence[FileSummary],
     topics: Sequence[TopicSummary],
-    custom_data: Optional[Mapping[str, str]] = None,
+    custom_data: Mapping[str, str] | None = None,
     ros_distro: str = "",
     storage_identifier: str = "mcap",
-) -> Dict[str, Any]:
+) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` mapping for ``version`` (see module docstring)."""
     message_count = sum(f.message_count for f in files)
     with_messages = [f for f in files if f.message_count > 0]
@@ -148,7 +156,7 @@ def build_bag_metadata(
         start, end = EMPTY_BAG_STARTING_TIME_NS, EMPTY_BAG_STARTING_TIME_NS
     topic_entries = []
     for topic in topics:
-        topic_metadata: Dict[str, Any] = {
+        topic_metadata: dict[str, Any] = {
             "name": topic.name,
             "type": topic.type,
             "serialization_format": topic.serialization_format,
@@ -164,7 +172,7 @@ def build_bag_metadata(
         if version >= 7:
             topic_metadata["type_description_hash"] = topic.type_description_hash
         topic_entries.append({"topic_metadata": topic_metadata, "message_count": int(topic.message_count)})
-    info: Dict[str, Any] = {
+    info: dict[str, Any] = {
         "version": int(version),
         "storage_identifier": storage_identifier,
         "duration": {"nanoseconds": int(end - start)},
@@ -225,7 +233,7 @@ def _require(mapping: Mapping[str, Any], key: str, kind, where: str, source: str
     return value
 
 
-def parse_bag_metadata(info: Any, source: str) -> Dict[str, Any]:
+def parse_bag_metadata(info: Any, source: str) -> dict[str, Any]:
     """Validate a ``rosbag2_bagfile_information`` mapping and normalize it.
 
     Returns a dict with ``version``, ``storage_identifier``, ``relative_file_paths``,
@@ -245,7 +253,7 @@ def parse_bag_metadata(info: Any, source: str) -> Dict[str, Any]:
     starting_ns = _require(starting, "nanoseconds_since_epoch", int, "starting_time.", source)
     duration_ns = _require(duration, "nanoseconds", int, "duration.", source)
     entries = _require(info, "topics_with_message_count", (list, type(None)), "", source) or []
-    topics: Dict[str, TopicSummary] = {}
+    topics: dict[str, TopicSummary] = {}
     for index, entry in enumerate(entries):
         where = f"topics_with_message_count[{index}]."
         if not isinstance(entry, Mapping):
@@ -276,7 +284,7 @@ def parse_bag_metadata(info: Any, source: str) -> Dict[str, Any]:
     }
 
 
-def load_metadata_yaml(path: Union[str, Path]) -> Dict[str, Any]:
+def load_metadata_yaml(path: str | Path) -> dict[str, Any]:
     """Read and validate a bag's ``metadata.yaml`` (see :func:`parse_bag_metadata`)."""
     path = Path(path)
     try:

@@ -18,9 +18,10 @@ Durations are ``{sec, nsec}`` mappings. An "infinite" duration is ``RMW_DURATION
 ``{sec: 9223372036, nsec: 854775807}``, which is what ``ros2 bag record`` stores for a default
 publisher (deadline, lifespan, liveliness lease duration).
 """
+from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Iterable, List, Mapping, NamedTuple, Optional, Sequence, Union
+from typing import Any, Iterable, Mapping, NamedTuple, Sequence
 
 import yaml
 
@@ -144,7 +145,7 @@ def qos_to_dict(profile: QosProfile, metadata_version: int) -> dict:
     """Profile as the mapping rosbag2 serializes, for the given ``metadata.yaml`` version."""
     use_names = metadata_version >= _FIRST_STRING_ENUM_VERSION
 
-    def policy(name: str) -> Union[str, int]:
+    def policy(name: str) -> str | int:
         value = getattr(profile, name)
         return value if use_names else _POLICIES[name][value]
 
@@ -227,11 +228,11 @@ def serialize_qos_profiles(profiles: Iterable[QosProfile], metadata_version: int
     return yaml.safe_dump(items, default_flow_style=False, sort_keys=False).rstrip("\n")
 
 
-def parse_qos_profiles(value: Union[str, Sequence[Mapping[str, Any]], None]) -> List[QosProfile]:
+def parse_qos_profiles(value: str | Sequence[Mapping[str, Any]] | None) -> list[QosProfile]:
     """Parse ``offered_qos_profiles`` from metadata.yaml or channel metadata (string or list)."""
     if value is None or value == "" or value == []:
         return []
-    items: Optional[Any] = value
+    items: Any | None = value
     if isinstance(value, str):
         try:
             items = yaml.safe_load(value)

@@ -2,7 +2,7 @@
 
 Complete files are read through their summary and chunk indexes (``mcap.reader.SeekingReader``);
 unfinished or truncated files (recorder killed) are read record by record up to the last
-complete chunk (:func:`dea_ros.bag.mcap_io.scan_mcap`), with a :class:`BagTruncatedWarning` and
+complete chunk (:func:`dea_ros.bag.mcap_scan.scan_mcap`), with a :class:`BagTruncatedWarning` and
 ``reader.truncated == True``. Messages are decoded with mcap_ros2's dynamic CDR decoder from the
 ``ros2msg`` schema stored in the bag, so no ROS message packages are needed; decoded messages
 have attribute access (``msg.header.stamp.sec``, ``msg.range``).
@@ -14,19 +14,25 @@ decompression, the data-section and summary CRCs, indexes against the data, and 
 message decodes with its schema), as ``dea-ros bag info`` does.
 """
 
+from __future__ import annotations
+
 import heapq
 import warnings
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, Iterator, List, Mapping, NamedTuple, Optional, Set, Tuple, Union
+from typing import Any, BinaryIO, Callable, Iterable, Iterator, Mapping, NamedTuple
 
+from mcap.reader import SeekingReader
+
+from ..errors import BagError, BagTruncatedWarning, BagWarning, McapSummaryMissing
 from .definitions import normalize_type_name
-from .errors import BagError, BagTruncatedWarning, BagWarning
-from .mcap_io import McapScan, has_valid_footer, scan_mcap
+from .mcap_contents import McapScan
+from .mcap_records import has_valid_footer
+from .mcap_scan import scan_mcap
+from .message_codec import message_decoder
 from .metadata import METADATA_FILENAME, load_metadata_yaml
 from .qos import QosProfile, parse_qos_profiles
-from ..errors import McapSummaryMissing
 
-__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage", "message_decoder"]
+__all__ = ["BagReader", "TopicInfo", "BagMessage", "RawBagMessage"]
 
 
 class TopicInfo(NamedTuple):
@@ -34,7 +40,7 @@ class TopicInfo(NamedTuple):
 
     type: str  #: ``pkg/msg/Type``
     message_count: int
-    qos_profiles: List[QosProfile]
+    qos_profiles: list[QosProfile]
 
 
 class BagMessage(NamedTuple):
@@ -62,39 +68,47 @@ class _McapFile:
         self.truncated = False
         self.damaged = False
         self.problem = ""
-        self._scan: Optional[McapScan] = None
-        self._handle = None
-        self._reader = None
-        if has_valid_footer(path):
-            try:
-                from mcap.reader import SeekingReader
+        self._scan: McapScan | None = None
+        self._handle: BinaryIO | None = None
+        self._reader: SeekingReader | None = None
+        if has_valid_footer(path) and self._open_indexed():
+            return
+        self._open_scanned()
 
-                self._handle = open(path, "rb")
-                self._reader = SeekingReader(self._handle, validate_crcs=True)
-                header = self._reader.get_header()
-                summary = self._reader.get_summary()
-                if summary is None:  # no summary section (allowed by MCAP): read linearly
-                    raise McapSummaryMissing()
-                if summary.statistics is None:
-                    raise ValueError("no summary statistics")
-                self.profile = header.profile
-                self.schemas = dict(summary.schemas)
-                self.channels = dict(summary.channels)
-                self.counts = dict(summary.statistics.channel_message_counts)
-                self.start_time = summary.statistics.message_start_time
-                self.end_time = summary.statistics.message_end_time
-                self.message_count = summary.statistics.message_count
-                self.metadata = [(m.name, dict(m.metadata)) for m in self._reader.iter_metadata()]
-                self._check_profile()
-                return
-            except BagError:
-                self.close()
-                raise
-            except McapSummaryMissing:
-                self.close()
-            except Exception as exc:  # damaged summary: fall back to a linear scan
-                self.close()
-                self.problem = f"summary unreadable ({type(exc).__name__}: {exc}); scanned linearly"
+    def _open_indexed(self) -> bool:
+        """Read a complete file through its summary; False (file closed) when it must be scanned instead."""
+        try:
+            self._handle = open(self.path, "rb")
+            self._reader = SeekingReader(self._handle, validate_crcs=True)
+            header = self._reader.get_header()
+            summary = self._reader.get_summary()
+            if summary is None:  # no summary section (allowed by MCAP): read linearly
+                raise McapSummaryMissing()
+            if summary.statistics is None:
+                raise ValueError("no summary statistics")
+            self.profile = header.profile
+            self.schemas = dict(summary.schemas)
+            self.channels = dict(summary.channels)
+            self.counts = dict(summary.statistics.channel_message_counts)
+            self.start_time = summary.statistics.message_start_time
+            self.end_time = summary.statistics.message_end_time
+            self.message_count = summary.statistics.message_count
+            self.metadata = [(m.name, dict(m.metadata)) for m in self._reader.iter_metadata()]
+            self._check_profile()
+            return True
+        except BagError:
+            self.close()
+            raise
+        except McapSummaryMissing:
+            self.close()
+        except Exception as exc:  # damaged summary: fall back to a linear scan
+            self.close()
+            self.problem = f"summary unreadable ({type(exc).__name__}: {exc}); scanned linearly"
+        return False
+
+    def _open_scanned(self) -> None:
+        """Read the complete prefix of a file record by record (unfinished, damaged or without summary)."""
+        path = self.path
         scan = scan_mcap(path)
         if scan.header is None:
             raise BagError(
@@ -111,7 +125,7 @@ class _McapFile:
         self.profile = scan.header.profile
         self.schemas = dict(scan.schemas)
         self.channels = dict(scan.channels)
-        self.counts: Dict[int, int] = {}
+        self.counts: dict[int, int] = {}
         for message in scan.messages:
             self.counts[message.channel_id] = self.counts.get(message.channel_id, 0) + 1
         times = [m.log_time for m in scan.messages]
@@ -134,7 +148,7 @@ class _McapFile:
         self._handle = None
         self._reader = None
 
-    def iter_raw(self, topics: Optional[Set[str]]) -> Iterator[Tuple[int, int, Any, Any]]:
+    def iter_raw(self, topics: set[str] | None) -> Iterator[tuple[int, int, Any, Any]]:
         """Yield ``(log_time, publish_time, channel, data)`` in log-time order."""
         if self._scan is not None:
             wanted = {cid for cid, ch in self.channels.items() if topics is None or ch.topic in topics}
@@ -172,23 +186,23 @@ class _McapFile:
 class BagReader:
     """Read a rosbag2 MCAP bag: a bag directory (with or without ``metadata.yaml``) or one ``.mcap``.
 
-    :param path: bag directory or ``.mcap`` file.
-    :param warn: emit :class:`BagWarning` / :class:`BagTruncatedWarning` for recoverable problems
-        (they are always listed in :attr:`problems`).
+    * ``path``: bag directory or ``.mcap`` file.
+    * ``warn``: emit :class:`BagWarning` / :class:`BagTruncatedWarning` for recoverable problems
+      (they are always listed in :attr:`problems`).
 
     Raises :class:`BagError` (naming the file and the problem) for a path that is not a bag, an
     unsupported storage (e.g. sqlite3), a malformed ``metadata.yaml``, a missing storage file or
     a non-ROS-2 MCAP file.
     """
 
-    def __init__(self, path: Union[str, Path], *, warn: bool = True) -> None:
+    def __init__(self, path: str | Path, *, warn: bool = True) -> None:
         self._path = Path(path).expanduser()
         self._warn = warn
-        self.problems: List[str] = []
-        self.bag_metadata: Optional[Dict[str, Any]] = None
-        self._files: List[_McapFile] = []
-        self._decoders: Dict[Tuple[int, int], Callable[[bytes], Any]] = {}
-        self._metadata_problems: List[str] = []
+        self.problems: list[str] = []
+        self.bag_metadata: dict[str, Any] | None = None
+        self._files: list[_McapFile] = []
+        self._decoders: dict[tuple[int, int], Callable[[bytes], Any]] = {}
+        self._metadata_problems: list[str] = []
         try:
             for file_path in self._resolve_files():
                 self._files.append(_McapFile(file_path))
@@ -211,7 +225,7 @@ class BagReader:
         self._check_metadata_consistency()
 
     # -- opening -------------------------------------------------------------------------------
-    def _resolve_files(self) -> List[Path]:
+    def _resolve_files(self) -> list[Path]:
         path = self._path
         if not path.exists():
             raise BagError(f"bag {path} does not exist")
@@ -286,7 +300,7 @@ class BagReader:
         return self._path
 
     @property
-    def files(self) -> List[Path]:
+    def files(self) -> list[Path]:
         """The ``.mcap`` storage files read."""
         return [f.path for f in self._files]
 
@@ -317,9 +331,9 @@ class BagReader:
         times = [f.end_time for f in self._files if f.message_count]
         return max(times, default=0)
 
-    def topics(self) -> Dict[str, TopicInfo]:
+    def topics(self) -> dict[str, TopicInfo]:
         """``{topic: TopicInfo(type, message_count, qos_profiles)}`` from the MCAP channels."""
-        result: Dict[str, TopicInfo] = {}
+        result: dict[str, TopicInfo] = {}
         for mcap_file in self._files:
             for channel_id, channel in mcap_file.channels.items():
                 schema = mcap_file.schemas.get(channel.schema_id)
@@ -337,7 +351,7 @@ class BagReader:
                 result[channel.topic] = TopicInfo(type_name, count, self._qos_of(mcap_file, channel))
         return result
 
-    def _qos_of(self, mcap_file: _McapFile, channel) -> List[QosProfile]:
+    def _qos_of(self, mcap_file: _McapFile, channel) -> list[QosProfile]:
         text = channel.metadata.get("offered_qos_profiles", "")
         try:
             return parse_qos_profiles(text)
@@ -349,7 +363,7 @@ class BagReader:
                 return list(self.bag_metadata["topics"][channel.topic].offered_qos_profiles)
             return []
 
-    def metadata(self) -> Dict[str, Dict[str, str]]:
+    def metadata(self) -> dict[str, dict[str, str]]:
         """MCAP Metadata records as ``{name: {key: value}}`` (a repeated name keeps its last record).
 
         Includes the ``rosbag2`` record (``serialized_metadata``) that rosbag2 and
@@ -357,7 +371,7 @@ class BagReader:
         """
         return {name: data for name, data in self.metadata_records()}
 
-    def metadata_records(self) -> List[Tuple[str, Dict[str, str]]]:
+    def metadata_records(self) -> list[tuple[str, dict[str, str]]]:
         """All MCAP Metadata records ``(name, {key: value})`` in file order."""
         return [record for mcap_file in self._files for record in mcap_file.metadata]
 
@@ -382,7 +396,7 @@ class BagReader:
             raise BagError(f"bag {self._path} does not match: {'; '.join(parts)}. Topics in the bag: {listing}")
 
     # -- messages -------------------------------------------------------------------------------
-    def _topic_filter(self, topics: Union[str, Iterable[str], None]) -> Optional[Set[str]]:
+    def _topic_filter(self, topics: str | Iterable[str] | None) -> set[str] | None:
         if topics is None:
             return None
         wanted = {topics} if isinstance(topics, str) else set(topics)
@@ -394,7 +408,7 @@ class BagReader:
             )
         return wanted
 
-    def _iter_merged(self, topics: Optional[Set[str]]) -> Iterator[Tuple[int, int, int, Any, Any]]:
+    def _iter_merged(self, topics: set[str] | None) -> Iterator[tuple[int, int, int, Any, Any]]:
         streams = [
             ((log, index, pub, channel, data) for log, pub, channel, data in mcap_file.iter_raw(topics))
             for index, mcap_file in enumerate(self._files)
@@ -403,16 +417,16 @@ class BagReader:
             return streams[0]
         return heapq.merge(*streams, key=lambda item: (item[0], item[1]))
 
-    def raw_messages(self, topics: Union[str, Iterable[str], None] = None) -> Iterator[RawBagMessage]:
+    def raw_messages(self, topics: str | Iterable[str] | None = None) -> Iterator[RawBagMessage]:
         """Yield :class:`RawBagMessage` (CDR bytes) in log-time order, optionally only ``topics``."""
         wanted = self._topic_filter(topics)
         for log_time, _index, publish_time, channel, data in self._iter_merged(wanted):
             yield RawBagMessage(channel.topic, log_time, publish_time, bytes(data))
 
-    def messages(self, topics: Union[str, Iterable[str], None] = None) -> Iterator[BagMessage]:
+    def messages(self, topics: str | Iterable[str] | None = None) -> Iterator[BagMessage]:
         """Yield :class:`BagMessage` ``(topic, log_time_ns, decoded message)`` in log-time order.
 
-        :param topics: a topic or topics to read (all when ``None``); an unknown topic raises
+        * ``topics``: a topic or topics to read (all when ``None``); an unknown topic raises
             :class:`BagError` listing the available ones.
         """
         wanted = self._topic_filter(topics)
@@ -451,10 +465,10 @@ class BagReader:
         return decoder
 
     # -- verification ---------------------------------------------------------------------------
-    def verify(self, decode: bool = True, max_decode_errors: int = 5) -> List[str]:
+    def verify(self, decode: bool = True, max_decode_errors: int = 5) -> list[str]:
         """Check the whole bag; return the corruption found (empty list: intact).
 
-        Reads every record of every storage file (:func:`~dea_ros.bag.mcap_io.scan_mcap` with
+        Reads every record of every storage file (:func:`~dea_ros.bag.mcap_scan.scan_mcap` with
         ``verify=True``): chunk CRCs and decompression, the Message Index records against the
         chunks, the data-section CRC, the summary section and footer against the data. With
         ``decode``, every message is decoded with the schema stored for its channel. Also lists a
@@ -462,7 +476,7 @@ class BagReader:
         record (offset, topic, log time). An unfinished file (recorder killed) is not corruption:
         see :attr:`truncated`.
         """
-        problems: List[str] = []
+        problems: list[str] = []
         for mcap_file in self._files:
             try:
                 scan = scan_mcap(mcap_file.path, load_messages=decode, verify=True)
@@ -487,14 +501,14 @@ class BagReader:
         for mcap_file in self._files:
             mcap_file.close()
 
-    def __enter__(self) -> "BagReader":
+    def __enter__(self) -> BagReader:
         return self
 
     def __exit__(self, exc_type, exc, traceback) -> None:
         self.close()
 
 
-def _load_metadata(path: Path) -> Dict[str, Any]:
+def _load_metadata(path: Path) -> dict[str, Any]:
     """:func:`load_metadata_yaml`, with every way a damaged file can fail as :class:`BagError`."""
     try:
         return load_metadata_yaml(path)
@@ -506,22 +520,10 @@ def _load_metadata(path: Path) -> Dict[str, Any]:
                        "'dea-ros bag recover' to regenerate it") from None
 
 
-def message_decoder(type_name: str, schema_data: bytes) -> Callable[[bytes], Any]:
-    """mcap_ros2's dynamic CDR decoder for a ``ros2msg`` schema (its parser's prints silenced)."""
-    import contextlib
-    import io
-
-    from mcap_ros2._dynamic import generate_dynamic
-
-    text = schema_data.decode("utf-8")
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        return generate_dynamic(type_name, text)[type_name]
-
-
-def _decode_problems(scan: McapScan, max_errors: int) -> List[str]:
+def _decode_problems(scan: McapScan, max_errors: int) -> list[str]:
     """Decode every message of a scan with its channel's schema; the failures, as text."""
-    decoders: Dict[int, Optional[Callable[[bytes], Any]]] = {}
-    problems: List[str] = []
+    decoders: dict[int, Callable[[bytes], Any] | None] = {}
+    problems: list[str] = []
     failures = 0
     for number, (message, offset) in enumerate(zip(scan.messages, scan.message_offsets)):
         channel = scan.channels.get(message.channel_id)

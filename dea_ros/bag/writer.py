@@ -12,20 +12,29 @@ unfinished file has no summary/footer and there is no ``metadata.yaml``: run
 ``fsync=True`` additionally survives power loss, at the cost of one ``fsync`` per flush.
 """
 
+from __future__ import annotations
+
 import os
 import shutil
 import tempfile
 import threading
 import time
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Union
+from typing import Any, Callable, Mapping, Sequence
 
+from .. import __version__
+from ..errors import BagError
 from .definitions import MessageDefinitionStore, normalize_type_name
-from .errors import BagError
-from .mcap_io import COMPRESSIONS, McapChunkedWriter
+from .files import write_text_atomic
+from .mcap_compression import COMPRESSIONS
+from .mcap_writer import DEFAULT_CHUNK_SIZE_BYTES, McapChunkedWriter
+from .message_codec import message_encoder, plain_message
 from .metadata import (
+    CUSTOM_DATA_RECORD,
     EMPTY_BAG_STARTING_TIME_NS,
     METADATA_FILENAME,
+    ROSBAG2_METADATA_RECORD,
     FileSummary,
     TopicSummary,
     build_bag_metadata,
@@ -42,33 +51,22 @@ __all__ = [
     "check_writable",
     "DEFAULT_MIN_FREE_BYTES",
     "library_identifier",
-    "ROSBAG2_METADATA_RECORD",
-    "CUSTOM_DATA_RECORD",
 ]
 
 #: Free disk space required before a recording starts (64 MiB).
 DEFAULT_MIN_FREE_BYTES = 64 * 1024 * 1024
-#: Name of the MCAP Metadata record holding the serialized ``metadata.yaml`` (rosbag2 convention).
-ROSBAG2_METADATA_RECORD = "rosbag2"
-#: MCAP Metadata record keeping ``custom_data`` in Humble-format bags (metadata version 5 has no
-#: ``custom_data`` field); :func:`dea_ros.bag.convert_bag` restores it when converting to Jazzy.
-CUSTOM_DATA_RECORD = "rosbag2.custom_data"
 
 
 def library_identifier() -> str:
     """MCAP header ``library`` string: ``dea_ros.bag <version> (mcap-python <version>)``."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         mcap_version = version("mcap")
     except PackageNotFoundError:  # pragma: no cover
         mcap_version = "unknown"
-    from .. import __version__
-
     return f"dea_ros.bag {__version__} (rosbag2-compatible; mcap-python {mcap_version})"
 
 
-def check_writable(path: Union[str, Path], min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> int:
+def check_writable(path: str | Path, min_free_bytes: int = DEFAULT_MIN_FREE_BYTES) -> int:
     """Check that a bag directory can be created at ``path``; return the free bytes there.
 
     Raises :class:`BagError` naming the path and the fix when ``path`` already exists and is not
@@ -119,8 +117,8 @@ class _Topic:
 
     __slots__ = ("name", "type_name", "qos", "channel_id", "type_hash", "count", "schema_text", "encoder")
 
-    def __init__(self, name: str, type_name: str, qos: List[QosProfile], channel_id: int, type_hash: str,
-                 schema_text: str):
+    def __init__(self, name: str, type_name: str, qos: list[QosProfile], channel_id: int, type_hash: str,
+                 schema_text: str) -> None:
         self.name = name
         self.type_name = type_name
         self.qos = qos
@@ -128,44 +126,44 @@ class _Topic:
         self.type_hash = type_hash
         self.count = 0
         self.schema_text = schema_text
-        self.encoder = None
+        self.encoder: Callable[[Any], bytes] | None = None
 
 
 class BagWriter:
     """Write a rosbag2-compatible MCAP bag directory (thread-safe; no ROS needed).
 
-    :param path: bag directory to create (must not exist, or be empty).
-    :param compression: chunk compression ``"zstd"`` (default), ``"lz4"`` or ``"none"``.
-    :param compression_level: codec level, ``None`` for the codec default.
-    :param chunk_size_bytes: uncompressed chunk size that closes a chunk (768 KiB as libmcap).
-    :param flush_period_s: maximum age of unflushed messages, in seconds (``None``: flush only when
-        a chunk is full and on close; not crash-safe).
-    :param fsync: ``os.fsync`` on every flush (survive power loss, not only process death).
-    :param rosbag2_format: ``"jazzy"`` (metadata version 9: Jazzy, Kilted, Rolling),
-        ``"humble"`` (metadata version 5, readable by Humble and newer) or ``None``/``"auto"``:
-        from ``$ROS_DISTRO`` (:func:`~dea_ros.bag.metadata.default_rosbag2_format`).
-    :param ros_distro: the distro recorded (``metadata.yaml`` v9; MCAP ``rosbag2`` record
-        ``ROS_DISTRO`` for Humble, as Humble's storage plugin writes); default ``$ROS_DISTRO``,
-        else the format's name (never empty).
-    :param custom_data: ``custom_data`` key/value strings of ``metadata.yaml`` (v9; kept in the
-        MCAP record ``rosbag2.custom_data`` for Humble).
-    :param definitions: message definition source (default: a new :class:`MessageDefinitionStore`).
-    :param min_free_bytes: free disk space required to start (see :func:`check_writable`).
+    * ``path``: bag directory to create (must not exist, or be empty).
+    * ``compression``: chunk compression ``"zstd"`` (default), ``"lz4"`` or ``"none"``.
+    * ``compression_level``: codec level, ``None`` for the codec default.
+    * ``chunk_size_bytes``: uncompressed chunk size that closes a chunk (768 KiB as libmcap).
+    * ``flush_period_s``: maximum age of unflushed messages, in seconds (``None``: flush only when
+      a chunk is full and on close; not crash-safe).
+    * ``fsync``: ``os.fsync`` on every flush (survive power loss, not only process death).
+    * ``rosbag2_format``: ``"jazzy"`` (metadata version 9: Jazzy, Kilted, Rolling),
+      ``"humble"`` (metadata version 5, readable by Humble and newer) or ``None``/``"auto"``:
+      from ``$ROS_DISTRO`` (:func:`~dea_ros.bag.metadata.default_rosbag2_format`).
+    * ``ros_distro``: the distro recorded (``metadata.yaml`` v9; MCAP ``rosbag2`` record
+      ``ROS_DISTRO`` for Humble, as Humble's storage plugin writes); default ``$ROS_DISTRO``,
+      else the format's name (never empty).
+    * ``custom_data``: ``custom_data`` key/value strings of ``metadata.yaml`` (v9; kept in the
+      MCAP record ``rosbag2.custom_data`` for Humble).
+    * ``definitions``: message definition source (default: a new :class:`MessageDefinitionStore`).
+    * ``min_free_bytes``: free disk space required to start (see :func:`check_writable`).
     """
 
     def __init__(
         self,
-        path: Union[str, Path],
+        path: str | Path,
         *,
         compression: str = "zstd",
-        compression_level: Optional[int] = None,
-        chunk_size_bytes: int = 768 * 1024,
-        flush_period_s: Optional[float] = 1.0,
+        compression_level: int | None = None,
+        chunk_size_bytes: int = DEFAULT_CHUNK_SIZE_BYTES,
+        flush_period_s: float | None = 1.0,
         fsync: bool = False,
-        rosbag2_format: Optional[str] = None,
-        ros_distro: Optional[str] = None,
-        custom_data: Optional[Mapping[str, str]] = None,
-        definitions: Optional[MessageDefinitionStore] = None,
+        rosbag2_format: str | None = None,
+        ros_distro: str | None = None,
+        custom_data: Mapping[str, str] | None = None,
+        definitions: MessageDefinitionStore | None = None,
         min_free_bytes: int = DEFAULT_MIN_FREE_BYTES,
     ) -> None:
         if compression not in COMPRESSIONS:
@@ -182,13 +180,24 @@ class BagWriter:
         self._flush_period = flush_period_s
         self._fsync = fsync
         self._lock = threading.RLock()
-        self._topics: Dict[str, _Topic] = {}
-        self._schema_ids: Dict[str, int] = {}
+        self._topics: dict[str, _Topic] = {}
+        self._schema_ids: dict[str, int] = {}
         self._closed = False
-        self._flush_error: Optional[BagError] = None
-        self._pending_since: Optional[float] = None
+        self._flush_error: BagError | None = None
+        self._pending_since: float | None = None
         name = self._path.name or "rosbag2"
         self._mcap_name = f"{name}_0.mcap"
+        self._open_storage(compression, chunk_size_bytes, compression_level)
+        self._stop_flusher = threading.Event()
+        self._flusher: threading.Thread | None = None
+        if flush_period_s is not None:
+            self._flusher = threading.Thread(
+                target=self._flush_loop, name=f"BagWriter flusher {self._path.name}", daemon=True
+            )
+            self._flusher.start()
+
+    def _open_storage(self, compression: str, chunk_size_bytes: int, compression_level: int | None) -> None:
+        """Create the ``.mcap`` file and write its Header and ``rosbag2`` records (flushed)."""
         try:
             self._path.mkdir(parents=True, exist_ok=True)
             # Unbuffered: every record/chunk the MCAP writer emits goes straight to the OS.
@@ -219,13 +228,6 @@ class BagWriter:
         except BaseException:
             self._file.close()
             raise
-        self._stop_flusher = threading.Event()
-        self._flusher: Optional[threading.Thread] = None
-        if flush_period_s is not None:
-            self._flusher = threading.Thread(
-                target=self._flush_loop, name=f"BagWriter flusher {self._path.name}", daemon=True
-            )
-            self._flusher.start()
 
     # -- properties --------------------------------------------------------------------------
     @property
@@ -263,7 +265,7 @@ class BagWriter:
         """True after :meth:`close`."""
         return self._closed
 
-    def topic_message_counts(self) -> Dict[str, int]:
+    def topic_message_counts(self) -> dict[str, int]:
         """``{topic: messages written}``."""
         with self._lock:
             return {name: topic.count for name, topic in self._topics.items()}
@@ -273,21 +275,21 @@ class BagWriter:
         self,
         name: str,
         type_name: str,
-        qos: Union[QosProfile, Sequence[QosProfile], None] = None,
+        qos: QosProfile | Sequence[QosProfile] | None = None,
         *,
-        type_hash: Optional[str] = None,
-        schema_text: Optional[str] = None,
+        type_hash: str | None = None,
+        schema_text: str | None = None,
     ) -> None:
         """Register a topic (MCAP schema + channel) before writing to it.
 
-        :param name: absolute topic name, e.g. ``"/dea/voltage"``.
-        :param type_name: ``pkg/msg/Type`` (``pkg/Type`` accepted).
-        :param qos: offered QoS profile(s); default :func:`~dea_ros.bag.qos.command_qos`
-            (reliable, volatile, keep_last 10). Use :func:`~dea_ros.bag.qos.sensor_data_qos` for
-            best-effort sensor streams.
-        :param type_hash: ``RIHS01_...`` to store; default from the installed type description.
-        :param schema_text: the full ``ros2msg`` schema text to store (e.g. copied from another
-            bag); default: built from the installed (else vendored) ``.msg`` files.
+        * ``name``: absolute topic name, e.g. ``"/dea/voltage"``.
+        * ``type_name``: ``pkg/msg/Type`` (``pkg/Type`` accepted).
+        * ``qos``: offered QoS profile(s); default :func:`~dea_ros.bag.qos.command_qos`
+          (reliable, volatile, keep_last 10). Use :func:`~dea_ros.bag.qos.sensor_data_qos` for
+          best-effort sensor streams.
+        * ``type_hash``: ``RIHS01_...`` to store; default from the installed type description.
+        * ``schema_text``: the full ``ros2msg`` schema text to store (e.g. copied from another
+          bag); default: built from the installed (else vendored) ``.msg`` files.
 
         Registering the same topic again with the same type and QoS is a no-op; anything else
         raises :class:`BagError`.
@@ -298,14 +300,7 @@ class BagWriter:
                 "(rosbag2 stores fully qualified names)"
             )
         canonical = normalize_type_name(type_name)
-        if qos is None:
-            profiles = [command_qos()]
-        elif isinstance(qos, QosProfile):
-            profiles = [qos]
-        else:
-            profiles = list(qos)
-            if not all(isinstance(p, QosProfile) for p in profiles):
-                raise BagError(f"qos of topic {name}: expected QosProfile or a list of them, got {qos!r}")
+        profiles = _offered_profiles(name, qos)
         with self._lock:
             self._check_open()
             existing = self._topics.get(name)
@@ -316,42 +311,47 @@ class BagWriter:
                         f"{existing.type_name} with QoS {existing.qos}; a topic has one type and QoS"
                     )
                 return
-            if schema_text is None:
-                definition = self._definitions.full_definition(canonical)
-                text, encoding, known_hash = definition.text, definition.encoding, definition.type_hash
-            else:
-                text, encoding, known_hash = schema_text, "ros2msg", ""
-            resolved_hash = known_hash if type_hash is None else type_hash
-            if resolved_hash and not resolved_hash.startswith("RIHS01_"):
-                raise BagError(f"type_hash {resolved_hash!r} of topic {name} must start with 'RIHS01_'")
-            schema_id = self._schema_ids.get(canonical)
-            if schema_id is None:
-                schema_id = self._mcap.add_schema(canonical, encoding, text.encode("utf-8"))
-                self._schema_ids[canonical] = schema_id
-            channel_metadata = {"offered_qos_profiles": serialize_qos_profiles(profiles, self._version)}
-            if resolved_hash:
-                # Jazzy's MCAPStorage::create_topic writes it; Humble's reader ignores channel
-                # metadata other than offered_qos_profiles, so Humble bags keep it too (lossless
-                # conversion between the formats).
-                channel_metadata["topic_type_hash"] = resolved_hash
-            channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
-            self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
-            try:
-                self._mcap.flush(fsync=self._fsync)
-            except OSError as exc:
-                raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
+            self._add_channel_locked(name, canonical, profiles, type_hash, schema_text)
+
+    def _add_channel_locked(self, name: str, canonical: str, profiles: list[QosProfile], type_hash: str | None,
+                            schema_text: str | None) -> None:
+        """Write the topic's schema (once per type) and channel records, flushed (lock held)."""
+        if schema_text is None:
+            definition = self._definitions.full_definition(canonical)
+            text, encoding, known_hash = definition.text, definition.encoding, definition.type_hash
+        else:
+            text, encoding, known_hash = schema_text, "ros2msg", ""
+        resolved_hash = known_hash if type_hash is None else type_hash
+        if resolved_hash and not resolved_hash.startswith("RIHS01_"):
+            raise BagError(f"type_hash {resolved_hash!r} of topic {name} must start with 'RIHS01_'")
+        schema_id = self._schema_ids.get(canonical)
+        if schema_id is None:
+            schema_id = self._mcap.add_schema(canonical, encoding, text.encode("utf-8"))
+            self._schema_ids[canonical] = schema_id
+        channel_metadata = {"offered_qos_profiles": serialize_qos_profiles(profiles, self._version)}
+        if resolved_hash:
+            # Jazzy's MCAPStorage::create_topic writes it; Humble's reader ignores channel
+            # metadata other than offered_qos_profiles, so Humble bags keep it too (lossless
+            # conversion between the formats).
+            channel_metadata["topic_type_hash"] = resolved_hash
+        channel_id = self._mcap.add_channel(name, "cdr", schema_id, channel_metadata)
+        self._topics[name] = _Topic(name, canonical, profiles, channel_id, resolved_hash, text)
+        try:
+            self._mcap.flush(fsync=self._fsync)
+        except OSError as exc:
+            raise self._poison(f"writing to {self.mcap_path} failed: {exc.strerror or exc}") from exc
 
     def write_serialized(
         self,
         topic: str,
-        cdr_bytes: Union[bytes, bytearray, memoryview],
+        cdr_bytes: bytes | bytearray | memoryview,
         log_time_ns: int,
-        publish_time_ns: Optional[int] = None,
+        publish_time_ns: int | None = None,
     ) -> None:
         """Write one CDR-serialized message (e.g. from ``rclpy.serialization.serialize_message``).
 
-        :param log_time_ns: receive/record time, ns since the Unix epoch (rosbag2 ``recv_timestamp``).
-        :param publish_time_ns: send time, ns (default ``log_time_ns``).
+        * ``log_time_ns``: receive/record time, ns since the Unix epoch (rosbag2 ``recv_timestamp``).
+        * ``publish_time_ns``: send time, ns (default ``log_time_ns``).
         """
         if not isinstance(cdr_bytes, (bytes, bytearray)):
             try:
@@ -395,7 +395,7 @@ class BagWriter:
         topic: str,
         message: Any,
         log_time_ns: int,
-        publish_time_ns: Optional[int] = None,
+        publish_time_ns: int | None = None,
     ) -> None:
         """Serialize ``message`` (dict or object with the type's fields) to CDR and write it.
 
@@ -416,12 +416,9 @@ class BagWriter:
                 )
             encoder = entry.encoder
             if encoder is None:
-                from mcap_ros2._dynamic import serialize_dynamic
-
-                encoder = serialize_dynamic(entry.type_name, entry.schema_text)[entry.type_name]
-                entry.encoder = encoder
+                encoder = entry.encoder = message_encoder(entry.type_name, entry.schema_text)
         try:
-            data = encoder(_plain_message(message))
+            data = encoder(plain_message(message))
         except Exception as exc:
             raise BagError(
                 f"cannot serialize message for topic {topic} ({entry.type_name}): "
@@ -497,10 +494,10 @@ class BagWriter:
                 ) from exc
             finally:
                 self._file.close()
-            _write_text_atomic(self._path / METADATA_FILENAME, dump_metadata_yaml(info), self._fsync)
+            write_text_atomic(self._path / METADATA_FILENAME, dump_metadata_yaml(info), self._fsync)
         return self._path
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> BagWriter:
         return self
 
     def __exit__(self, exc_type, exc, traceback) -> None:
@@ -542,7 +539,8 @@ class BagWriter:
                     except BagError:
                         return  # poisoned: raised in the recording thread by its next write/flush
 
-    def _bag_info(self) -> Dict[str, Any]:
+    def _bag_info(self) -> dict[str, Any]:
+        """The bag's ``metadata.yaml`` mapping as written so far."""
         count = self._mcap.message_count
         if count:
             start, end = self._mcap.message_start_time, self._mcap.message_end_time
@@ -561,30 +559,20 @@ class BagWriter:
         )
 
 
-def _plain_message(message: Any) -> Any:
-    """rclpy message objects -> nested dicts (``byte``/``octet`` bytes -> int); others unchanged."""
-    get_fields = getattr(message, "get_fields_and_field_types", None)
-    if get_fields is None:
-        return message
-    plain: Dict[str, Any] = {}
-    for field_name, field_type in get_fields().items():
-        value = getattr(message, field_name)
-        if field_type in ("octet", "byte") and isinstance(value, (bytes, bytearray)) and len(value) == 1:
-            value = value[0]
-        elif hasattr(value, "get_fields_and_field_types"):
-            value = _plain_message(value)
-        elif isinstance(value, (list, tuple)):
-            value = [
-                item[0]
-                if isinstance(item, (bytes, bytearray)) and len(item) == 1
-                else _plain_message(item)
-                for item in value
-            ]
-        plain[field_name] = value
-    return plain
+def _offered_profiles(topic: str, qos: QosProfile | Sequence[QosProfile] | None) -> list[QosProfile]:
+    """The list of offered QoS profiles of ``add_topic`` (default: :func:`~dea_ros.bag.qos.command_qos`)."""
+    if qos is None:
+        return [command_qos()]
+    if isinstance(qos, QosProfile):
+        return [qos]
+    profiles = list(qos)
+    if not all(isinstance(p, QosProfile) for p in profiles):
+        raise BagError(f"qos of topic {topic}: expected QosProfile or a list of them, got {qos!r}")
+    return profiles
 
 
 def _timestamp(value: Any, name: str) -> int:
+    """A timestamp argument as an integer number of ns in [0, 2**64), else :class:`BagError`."""
     try:
         integer = int(value)
     except (TypeError, ValueError):
@@ -592,20 +580,3 @@ def _timestamp(value: Any, name: str) -> int:
     if integer != value or not 0 <= integer < 2**64:
         raise BagError(f"{name}={value!r} must be an integer in [0, 2**64) nanoseconds")
     return integer
-
-
-def _write_text_atomic(path: Path, text: str, fsync: bool) -> None:
-    temporary = path.with_name(path.name + ".tmp")
-    try:
-        with open(temporary, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            if fsync:
-                os.fsync(handle.fileno())
-        os.replace(temporary, path)
-    except OSError as exc:
-        try:
-            temporary.unlink()  # never leave a partial or empty file behind
-        except OSError:
-            pass
-        raise BagError(f"cannot write {path}: {exc.strerror or exc}") from exc

@@ -17,7 +17,7 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from dea_ros.bag import BagError, BagReader, BagWriter
-from dea_ros.bag.mcap_io import scan_mcap
+from dea_ros.bag.mcap_scan import scan_mcap
 from dea_ros.cli import main
 
 

@@ -14,7 +14,8 @@ import pytest
 from rosbags.highlevel import AnyReader
 
 from dea_ros.bag import BagError, BagReader, BagTruncatedWarning, BagWarning, BagWriter, recover_bag
-from dea_ros.bag.mcap_io import has_valid_footer, scan_mcap
+from dea_ros.bag.mcap_records import has_valid_footer
+from dea_ros.bag.mcap_scan import scan_mcap
 
 SCRIPT = Path(__file__).with_name("sigkill_writer_script.py")
 

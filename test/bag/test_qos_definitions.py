@@ -20,7 +20,7 @@ from dea_ros.bag import (
     sensor_data_qos,
     serialize_qos_profiles,
 )
-from dea_ros.bag._vendored_msgs import VENDORED_MSG_TEXTS, VENDORED_PACKAGE_VERSIONS
+from dea_ros.bag.vendored_messages import VENDORED_MSG_TEXTS, VENDORED_PACKAGE_VERSIONS
 
 RIG_TYPES = [
     "std_msgs/msg/Float64",

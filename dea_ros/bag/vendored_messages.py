@@ -1,4 +1,4 @@
-"""Vendored ROS 2 ``.msg`` definitions used when no ROS share directory provides them.
+"""Vendored ROS 2 ``.msg`` definitions, used when no ROS share directory provides them.
 
 The texts are byte-for-byte copies of the ``share/<pkg>/msg/<Type>.msg`` files of ROS 2 Kilted
 (std_msgs / sensor_msgs / diagnostic_msgs 5.5.1, builtin_interfaces / rosgraph_msgs 2.3.0), so a
@@ -9,6 +9,7 @@ definitions, its own texts are recorded (they differ between distros: Humble's R
 need a ROS installation (or an
 explicit ``extra_definitions`` mapping passed to :class:`~dea_ros.bag.definitions.MessageDefinitionStore`).
 """
+from __future__ import annotations
 
 from types import MappingProxyType
 
