@@ -4,7 +4,7 @@ The plant is the model (eq. 18) with its own, "true" parameters integrated by th
 (:class:`~dea_ros.solvers.integrate.RealTimeStepper`, ``physics_dt_s``); the laser samples it every
 ``sample_period_s`` with Gaussian noise and quantisation (as ``mock_hardware_node``); the
 controller's command reaches the amplifier ``latency_s`` later; the amplifier is the real safety
-core (:class:`~dea_ros.hardware.amplifier_safety.SafeVoltageController`: maximum, slew limit)
+core (:class:`~dea_ros.hardware.amplifier.safety.SafeVoltageController`: maximum, slew limit)
 updating every ``amplifier_period_s`` (offset ``amplifier_phase_s`` from the laser samples) and
 holding its output in between (zero-order hold). All event times are multiples of
 ``physics_dt_s``.
@@ -17,7 +17,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ..hardware.amplifier_safety import SafeVoltageController, SafetyLimits
+from ..hardware.amplifier.limits import SafetyLimits
+from ..hardware.amplifier.safety import SafeVoltageController
 from ..model import MembraneParameters
 from ..solvers.integrate import RealTimeStepper
 

@@ -56,7 +56,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 from sensor_msgs.msg import Range
 
-from ..hardware.amplifier_backends import MockAmplifierReceiver
+from ..sim.amplifier_receiver import MockAmplifierReceiver
 from ..model import ParameterError, load_parameters
 from ..solvers.integrate import RealTimeStepper
 from .common import (
