@@ -1,4 +1,8 @@
-"""TRANSITIONAL re-export (issue 24 phase 2 removes this): moved to dea_ros.hardware.amplifier, dea_ros.sim."""
+"""TRANSITIONAL re-export (issue 24 phase 2 removes this): moved to dea_ros.hardware.amplifier.
+
+Per name: base, inprocess, udp, uldaq, rig_description, config modules of dea_ros.hardware.amplifier;
+MockAmplifierReceiver, ReceivedVoltage: dea_ros.sim.amplifier_receiver.
+"""
 from ..errors import AmplifierBackendError, AmplifierRangeWarning
 from ..sim.amplifier_receiver import MockAmplifierReceiver, ReceivedVoltage
 from .amplifier.base import AmplifierBackend

@@ -1,4 +1,7 @@
-"""TRANSITIONAL re-export (issue 24 phase 2 removes this): moved to dea_ros.hardware.amplifier.limits, .safety."""
+"""TRANSITIONAL re-export (issue 24 phase 2 removes this): moved to dea_ros.hardware.amplifier.safety.
+
+SafetyLimits, membrane_voltage_limit_V and the constants: dea_ros.hardware.amplifier.limits.
+"""
 from ..errors import SafetyConfigError
 from .amplifier.limits import (
     ABSOLUTE_MAX_VOLTAGE_V,

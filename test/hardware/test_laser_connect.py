@@ -14,13 +14,9 @@ import time
 import pytest
 
 from dea_ros.hardware.ild1320_emulator import ILD1320Emulator
-from dea_ros.hardware.ild1320_protocol import (
-    DEFAULT_JUMP_TOLERANCE_M,
-    DEFAULT_MAX_SPEED_M_PER_S,
-    LaserSensorExpectation,
-    quantum_m,
-)
-from dea_ros.hardware.ild1320_sensor import ILD1320Sensor, describe_ild1320
+from dea_ros.hardware.laser.ild1320_protocol import LaserSensorExpectation, quantum_m
+from dea_ros.hardware.laser.ild1320_serial import ILD1320Sensor, describe_ild1320
+from dea_ros.hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
 from dea_ros.hardware.laser import MeasurementError, SensorConfigurationError, SensorDisconnected, SensorError
 
 MR = 0.010

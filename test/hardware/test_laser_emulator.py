@@ -15,7 +15,7 @@ from dea_ros.hardware.ild1320_emulator import (
     ILD1320Emulator,
     MockDisplacementSensor,
 )
-from dea_ros.hardware.ild1320_protocol import (
+from dea_ros.hardware.laser.ild1320_protocol import (
     CommandError,
     FrameDecoder,
     command_bytes,
@@ -23,7 +23,8 @@ from dea_ros.hardware.ild1320_protocol import (
     parse_reply,
     quantum_m,
 )
-from dea_ros.hardware.ild1320_sensor import ILD1320Sensor, SampleClock
+from dea_ros.hardware.laser.ild1320_serial import ILD1320Sensor
+from dea_ros.hardware.laser.sample_clock import SampleClock
 from dea_ros.hardware.laser import (
     DisplacementReading,
     DisplacementSensor,
