@@ -57,6 +57,7 @@ from std_msgs.msg import Header
 from sensor_msgs.msg import Range
 
 from ..sim.amplifier_receiver import MockAmplifierReceiver
+from ..sim.ild1320_emulator import ILD1320Emulator
 from ..model import ParameterError, load_parameters
 from ..solvers.integrate import RealTimeStepper
 from .common import (
@@ -230,12 +231,9 @@ class MockHardwareNode(Node):
             self.range_pub = self.create_publisher(Range, TOPIC_DISPLACEMENT, SENSOR_QOS)
         self.emulator = None
         if self.laser_output in ("emulator", "both"):
-            from ..hardware.ild1320_emulator import ILD1320Emulator
-
             standoff = self.laser_standoff_m
             self.emulator = ILD1320Emulator(
                 lambda t: standoff + self.sim.measure(t), measuring_rate_hz=2000.0, symlink=self.laser_port,
-                seed=seed,
             ).start()
         self.clock_pub = None
         if self.publish_clock:
