@@ -238,7 +238,7 @@ def _load_fake():
     import importlib.util
     from pathlib import Path
 
-    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).with_name("fake_uldaq.py"))
+    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).parents[1] / "fakes" / "fake_uldaq.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
