@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable
 
 import numpy as np
 
@@ -60,9 +60,9 @@ class ClosedLoopResult:
     applied_V: np.ndarray          # amplifier output at the sample time
 
 
-def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Optional[float]],
+def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], float | None],
                     duration_s: float, initial_voltage_V: float = 0.0,
-                    applied_hook: Optional[Callable[[float, float], None]] = None) -> ClosedLoopResult:
+                    applied_hook: Callable[[float, float], None] | None = None) -> ClosedLoopResult:
     """Simulate ``duration_s`` from rest at ``initial_voltage_V``.
 
     ``controller(t_k, measured_m)`` is called at every laser sample and returns a voltage command

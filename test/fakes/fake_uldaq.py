@@ -228,177 +228,216 @@ class FakeRig:
     def a_out_values(self):
         return [c[4] for c in self.calls if c[0] == "a_out"]
 
+    def check_connected(self):
+        """Raise what libuldaq raises on a device that is unplugged or not connected."""
+        if self.unplugged:
+            raise ULException(ULError.DEV_NOT_CONNECTED)
+        if not self.connected:
+            raise ULException(ULError.NO_CONNECTION_ESTABLISHED)
+
+    def find_port(self, port_type):
+        """(bits, io type) of a digital port of the board."""
+        assert isinstance(port_type, DigitalPortType)
+        for port, bits, io_type in self.dio:
+            if port == port_type:
+                return bits, io_type
+        raise ULException(ULError.BAD_PORT_TYPE)
+
+
+class AoInfo:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_num_chans(self):
+        return self._rig.ao_channels
+
+    def get_ranges(self):
+        return list(self._rig.ao_ranges)
+
+
+class AoDevice:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_info(self):
+        return AoInfo(self._rig)
+
+    def a_out(self, channel, analog_range, flags, data):
+        rig = self._rig
+        rig.calls.append(("a_out", channel, analog_range, flags, data))
+        assert isinstance(analog_range, Range) and isinstance(flags, AOutFlag)
+        assert isinstance(data, float)
+        if not 0 <= channel < rig.ao_channels:
+            raise ULException(ULError.BAD_AO_CHAN)
+        if analog_range not in rig.ao_ranges:
+            raise ULException(ULError.BAD_RANGE)
+        low, high = RANGE_LIMITS_V[analog_range]
+        if not low <= data <= high:
+            raise ULException(ULError.BAD_DA_VAL)
+        rig.check_connected()
+        rig.ao_values[channel] = data
+
+
+class AiInfo:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_num_chans(self):
+        return max(n for n, _ in self._rig.ai.values())
+
+    def get_num_chans_by_mode(self, input_mode):
+        assert isinstance(input_mode, AiInputMode)
+        return self._rig.ai.get(input_mode, (0, []))[0]
+
+    def get_ranges(self, input_mode):
+        assert isinstance(input_mode, AiInputMode)
+        return list(self._rig.ai.get(input_mode, (0, []))[1])
+
+
+class AiDevice:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_info(self):
+        return AiInfo(self._rig)
+
+    def a_in(self, channel, input_mode, analog_range, flags):
+        rig = self._rig
+        rig.calls.append(("a_in", channel, input_mode, analog_range, flags))
+        assert isinstance(input_mode, AiInputMode) and isinstance(analog_range, Range)
+        assert isinstance(flags, AInFlag)
+        if input_mode not in rig.ai:
+            raise ULException(ULError.BAD_INPUT_MODE)
+        n_channels, ranges = rig.ai[input_mode]
+        if not 0 <= channel < n_channels:
+            raise ULException(ULError.BAD_AI_CHAN)
+        if analog_range not in ranges:
+            raise ULException(ULError.BAD_RANGE)
+        if flags & ~(AInFlag.NOSCALEDATA | AInFlag.NOCALIBRATEDATA):
+            raise ULException(ULError.BAD_FLAG)
+        rig.check_connected()
+        if isinstance(rig.monitor_override, BaseException):
+            raise rig.monitor_override
+        if rig.monitor_override is not None:
+            value = float(rig.monitor_override)
+        elif (input_mode, channel) == rig.monitor_wiring:
+            value = rig.amplifier_output_V / rig.real_monitor_V_per_V
+        else:
+            value = 0.0  # an unwired input
+        low, high = RANGE_LIMITS_V[analog_range]
+        return min(max(value, low), high)  # the ADC saturates at the range ends
+
+
+class DioInfo:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_num_ports(self):
+        return len(self._rig.dio)
+
+    def get_port_types(self):
+        return [p for p, _, _ in self._rig.dio]
+
+    def get_port_info(self, port_type):
+        for port, bits, io_type in self._rig.dio:
+            if port == port_type:
+                return DioPortInfo(port, io_type, bits)
+        raise ULException(ULError.BAD_PORT_TYPE)
+
+
+class DioDevice:
+    def __init__(self, rig):
+        self._rig = rig
+
+    def get_info(self):
+        return DioInfo(self._rig)
+
+    def d_config_port(self, port_type, direction):
+        rig = self._rig
+        rig.calls.append(("d_config_port", port_type, direction))
+        bits, io_type = rig.find_port(port_type)
+        assert isinstance(direction, DigitalDirection)
+        rig.check_connected()
+        if io_type not in (DigitalPortIoType.IO, DigitalPortIoType.BITIO):
+            raise ULException(ULError.BAD_DIG_OPERATION)
+        for bit in range(bits):
+            if direction == DigitalDirection.OUTPUT:
+                rig.output_bits.add((port_type, bit))
+            else:
+                rig.output_bits.discard((port_type, bit))
+
+    def d_config_bit(self, port_type, bit_number, direction):
+        rig = self._rig
+        rig.calls.append(("d_config_bit", port_type, bit_number, direction))
+        bits, io_type = rig.find_port(port_type)
+        assert isinstance(direction, DigitalDirection)
+        if not 0 <= bit_number < bits:
+            raise ULException(ULError.BAD_BIT_NUM)
+        rig.check_connected()
+        if io_type != DigitalPortIoType.BITIO:  # "the port must be configurable (BITIO)"
+            raise ULException(ULError.BAD_DIG_OPERATION)
+        if direction == DigitalDirection.OUTPUT:
+            rig.output_bits.add((port_type, bit_number))
+        else:
+            rig.output_bits.discard((port_type, bit_number))
+
+    def d_bit_out(self, port_type, bit_number, data):
+        rig = self._rig
+        rig.calls.append(("d_bit_out", port_type, bit_number, data))
+        bits, io_type = rig.find_port(port_type)
+        if not 0 <= bit_number < bits:
+            raise ULException(ULError.BAD_BIT_NUM)
+        if io_type == DigitalPortIoType.IN:
+            raise ULException(ULError.BAD_DIG_OPERATION)
+        if (port_type, bit_number) not in rig.output_bits:
+            raise ULException(ULError.WRONG_DIG_CONFIG)
+        rig.check_connected()
+        rig.bit_levels[(port_type, bit_number)] = 1 if data else 0
+
+
+class FakeDaqDevice:
+    """uldaq's ``DaqDevice(descriptor)``; :func:`make` binds a subclass to its rig (class attribute ``rig``)."""
+
+    rig: FakeRig
+
+    def __init__(self, descriptor):
+        self._rig = type(self).rig
+        self._rig.calls.append(("DaqDevice", descriptor.unique_id))
+
+    def connect(self):
+        rig = self._rig
+        rig.calls.append(("connect",))
+        if rig.connect_error is not None:
+            raise ULException(rig.connect_error)
+        rig.connected = True
+
+    def is_connected(self):
+        return self._rig.connected and not self._rig.unplugged
+
+    def get_ao_device(self):
+        return AoDevice(self._rig) if self._rig.has_ao else None
+
+    def get_ai_device(self):
+        return AiDevice(self._rig) if self._rig.has_ai else None
+
+    def get_dio_device(self):
+        return DioDevice(self._rig) if self._rig.has_dio else None
+
+    def disconnect(self):
+        rig = self._rig
+        rig.calls.append(("disconnect",))
+        if not rig.connected or rig.unplugged:
+            raise ULException(ULError.DEV_NOT_CONNECTED)
+        rig.connected = False
+
+    def release(self):
+        self._rig.calls.append(("release",))
+
 
 def make(product="USB-1208HS-4AO", unique_id="01ABCDEF"):
     """(module, rig): a fake ``uldaq`` module and the fake hardware it drives."""
     rig = FakeRig(product, unique_id)
     ul = types.ModuleType("uldaq")
-
-    def check_connected():
-        if rig.unplugged:
-            raise ULException(ULError.DEV_NOT_CONNECTED)
-        if not rig.connected:
-            raise ULException(ULError.NO_CONNECTION_ESTABLISHED)
-
-    class AoInfo:
-        def get_num_chans(self):
-            return rig.ao_channels
-
-        def get_ranges(self):
-            return list(rig.ao_ranges)
-
-    class AoDevice:
-        def get_info(self):
-            return AoInfo()
-
-        def a_out(self, channel, analog_range, flags, data):
-            rig.calls.append(("a_out", channel, analog_range, flags, data))
-            assert isinstance(analog_range, Range) and isinstance(flags, AOutFlag)
-            assert isinstance(data, float)
-            if not 0 <= channel < rig.ao_channels:
-                raise ULException(ULError.BAD_AO_CHAN)
-            if analog_range not in rig.ao_ranges:
-                raise ULException(ULError.BAD_RANGE)
-            low, high = RANGE_LIMITS_V[analog_range]
-            if not low <= data <= high:
-                raise ULException(ULError.BAD_DA_VAL)
-            check_connected()
-            rig.ao_values[channel] = data
-
-    class AiInfo:
-        def get_num_chans(self):
-            return max(n for n, _ in rig.ai.values())
-
-        def get_num_chans_by_mode(self, input_mode):
-            assert isinstance(input_mode, AiInputMode)
-            return rig.ai.get(input_mode, (0, []))[0]
-
-        def get_ranges(self, input_mode):
-            assert isinstance(input_mode, AiInputMode)
-            return list(rig.ai.get(input_mode, (0, []))[1])
-
-    class AiDevice:
-        def get_info(self):
-            return AiInfo()
-
-        def a_in(self, channel, input_mode, analog_range, flags):
-            rig.calls.append(("a_in", channel, input_mode, analog_range, flags))
-            assert isinstance(input_mode, AiInputMode) and isinstance(analog_range, Range)
-            assert isinstance(flags, AInFlag)
-            if input_mode not in rig.ai:
-                raise ULException(ULError.BAD_INPUT_MODE)
-            n_channels, ranges = rig.ai[input_mode]
-            if not 0 <= channel < n_channels:
-                raise ULException(ULError.BAD_AI_CHAN)
-            if analog_range not in ranges:
-                raise ULException(ULError.BAD_RANGE)
-            if flags & ~(AInFlag.NOSCALEDATA | AInFlag.NOCALIBRATEDATA):
-                raise ULException(ULError.BAD_FLAG)
-            check_connected()
-            if isinstance(rig.monitor_override, BaseException):
-                raise rig.monitor_override
-            if rig.monitor_override is not None:
-                value = float(rig.monitor_override)
-            elif (input_mode, channel) == rig.monitor_wiring:
-                value = rig.amplifier_output_V / rig.real_monitor_V_per_V
-            else:
-                value = 0.0  # an unwired input
-            low, high = RANGE_LIMITS_V[analog_range]
-            return min(max(value, low), high)  # the ADC saturates at the range ends
-
-    class DioInfo:
-        def get_num_ports(self):
-            return len(rig.dio)
-
-        def get_port_types(self):
-            return [p for p, _, _ in rig.dio]
-
-        def get_port_info(self, port_type):
-            for port, bits, io_type in rig.dio:
-                if port == port_type:
-                    return DioPortInfo(port, io_type, bits)
-            raise ULException(ULError.BAD_PORT_TYPE)
-
-    def find_port(port_type):
-        assert isinstance(port_type, DigitalPortType)
-        for port, bits, io_type in rig.dio:
-            if port == port_type:
-                return bits, io_type
-        raise ULException(ULError.BAD_PORT_TYPE)
-
-    class DioDevice:
-        def get_info(self):
-            return DioInfo()
-
-        def d_config_port(self, port_type, direction):
-            rig.calls.append(("d_config_port", port_type, direction))
-            bits, io_type = find_port(port_type)
-            assert isinstance(direction, DigitalDirection)
-            check_connected()
-            if io_type not in (DigitalPortIoType.IO, DigitalPortIoType.BITIO):
-                raise ULException(ULError.BAD_DIG_OPERATION)
-            for bit in range(bits):
-                if direction == DigitalDirection.OUTPUT:
-                    rig.output_bits.add((port_type, bit))
-                else:
-                    rig.output_bits.discard((port_type, bit))
-
-        def d_config_bit(self, port_type, bit_number, direction):
-            rig.calls.append(("d_config_bit", port_type, bit_number, direction))
-            bits, io_type = find_port(port_type)
-            assert isinstance(direction, DigitalDirection)
-            if not 0 <= bit_number < bits:
-                raise ULException(ULError.BAD_BIT_NUM)
-            check_connected()
-            if io_type != DigitalPortIoType.BITIO:  # "the port must be configurable (BITIO)"
-                raise ULException(ULError.BAD_DIG_OPERATION)
-            if direction == DigitalDirection.OUTPUT:
-                rig.output_bits.add((port_type, bit_number))
-            else:
-                rig.output_bits.discard((port_type, bit_number))
-
-        def d_bit_out(self, port_type, bit_number, data):
-            rig.calls.append(("d_bit_out", port_type, bit_number, data))
-            bits, io_type = find_port(port_type)
-            if not 0 <= bit_number < bits:
-                raise ULException(ULError.BAD_BIT_NUM)
-            if io_type == DigitalPortIoType.IN:
-                raise ULException(ULError.BAD_DIG_OPERATION)
-            if (port_type, bit_number) not in rig.output_bits:
-                raise ULException(ULError.WRONG_DIG_CONFIG)
-            check_connected()
-            rig.bit_levels[(port_type, bit_number)] = 1 if data else 0
-
-    class DaqDevice:
-        def __init__(self, descriptor):
-            rig.calls.append(("DaqDevice", descriptor.unique_id))
-
-        def connect(self):
-            rig.calls.append(("connect",))
-            if rig.connect_error is not None:
-                raise ULException(rig.connect_error)
-            rig.connected = True
-
-        def is_connected(self):
-            return rig.connected and not rig.unplugged
-
-        def get_ao_device(self):
-            return AoDevice() if rig.has_ao else None
-
-        def get_ai_device(self):
-            return AiDevice() if rig.has_ai else None
-
-        def get_dio_device(self):
-            return DioDevice() if rig.has_dio else None
-
-        def disconnect(self):
-            rig.calls.append(("disconnect",))
-            if not rig.connected or rig.unplugged:
-                raise ULException(ULError.DEV_NOT_CONNECTED)
-            rig.connected = False
-
-        def release(self):
-            rig.calls.append(("release",))
 
     def get_daq_device_inventory(interface_type, number_of_devices=100):
         rig.calls.append(("get_daq_device_inventory", interface_type))
@@ -407,8 +446,9 @@ def make(product="USB-1208HS-4AO", unique_id="01ABCDEF"):
             raise ULException(rig.inventory_error)
         return list(rig.descriptors)
 
+    daq_device = type("DaqDevice", (FakeDaqDevice,), {"rig": rig})
     for obj in (ULError, InterfaceType, Range, AOutFlag, AInFlag, AiInputMode, DigitalDirection, DigitalPortIoType,
-                DigitalPortType, ULException, DaqDeviceDescriptor, DaqDevice, get_daq_device_inventory):
+                DigitalPortType, ULException, DaqDeviceDescriptor, daq_device, get_daq_device_inventory):
         setattr(ul, obj.__name__, obj)
     rig.uldaq = ul
     return ul, rig
