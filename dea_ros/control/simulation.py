@@ -1,30 +1,28 @@
 """Closed-loop simulation of the rig without ROS: a controller against a simulated plant.
 
-The plant is the model (eq. 18) with its own, "true" parameters integrated by the core's RK4
-(:class:`~dea_ros.solvers.integrate.RealTimeStepper`, ``physics_dt_s``); the laser samples it every
-``sample_period_s`` with Gaussian noise and quantisation (as ``mock_hardware_node``); the
-controller's command reaches the amplifier ``latency_s`` later; the amplifier is the real safety
-core (:class:`~dea_ros.hardware.amplifier_safety.SafeVoltageController`: maximum, slew limit)
-updating every ``amplifier_period_s`` (offset ``amplifier_phase_s`` from the laser samples) and
-holding its output in between (zero-order hold). All event times are multiples of
-``physics_dt_s``.
+The plant is the simulated rig's (:class:`~dea_ros.sim.plant.RigPlant`, the one
+``mock_hardware_node`` runs): the model (eq. 18) with its own, "true" parameters integrated by the
+core's RK4 (``physics_dt_s``), and the laser, which samples it every ``sample_period_s`` with
+Gaussian noise and quantisation; the controller's command reaches the amplifier ``latency_s``
+later; the amplifier is the real safety core
+(:class:`~dea_ros.hardware.amplifier.safety.SafeVoltageController`: maximum, slew limit) updating
+every ``amplifier_period_s`` (offset ``amplifier_phase_s`` from the laser samples) and holding its
+output in between (zero-order hold). All event times are multiples of ``physics_dt_s``.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable
 
 import numpy as np
 
-from ..hardware.amplifier_safety import SafeVoltageController, SafetyLimits
+from ..hardware.amplifier.limits import SafetyLimits
+from ..hardware.amplifier.safety import SafeVoltageController
 from ..model import MembraneParameters
-from ..solvers.integrate import RealTimeStepper
+from ..sim.plant import LASER_QUANTISATION_M, RigPlant
 
 __all__ = ["SimulatedRig", "ClosedLoopResult", "run_closed_loop", "loop_delays"]
-
-#: ILD1320-10 resolution (10 mm x 1.02 / 65520), as mock_hardware_node
-LASER_QUANTISATION_M = 10e-3 * 1.02 / 65520
 
 
 @dataclass(frozen=True)
@@ -62,9 +60,9 @@ class ClosedLoopResult:
     applied_V: np.ndarray          # amplifier output at the sample time
 
 
-def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Optional[float]],
+def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], float | None],
                     duration_s: float, initial_voltage_V: float = 0.0,
-                    applied_hook: Optional[Callable[[float, float], None]] = None) -> ClosedLoopResult:
+                    applied_hook: Callable[[float, float], None] | None = None) -> ClosedLoopResult:
     """Simulate ``duration_s`` from rest at ``initial_voltage_V``.
 
     ``controller(t_k, measured_m)`` is called at every laser sample and returns a voltage command
@@ -76,7 +74,8 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
     n_amp = rig.ticks(rig.amplifier_period_s)
     n_phase = rig.ticks(rig.amplifier_phase_s) % n_amp
     n_total = rig.ticks(round(duration_s / rig.sample_period_s) * rig.sample_period_s)
-    plant = RealTimeStepper(rig.params, dt_s=h, initial_voltage_V=initial_voltage_V)
+    plant = RigPlant(rig.params, h, noise_m=rig.noise_m, quantisation_m=rig.quantisation_m, seed=rig.seed,
+                     initial_voltage_V=initial_voltage_V)
     limits = SafetyLimits(max_voltage_V=rig.max_voltage_V, slew_rate_V_per_s=rig.slew_rate_V_per_s,
                           watchdog_timeout_s=60.0, ramp_down_rate_V_per_s=rig.slew_rate_V_per_s)
     amp = SafeVoltageController(limits)
@@ -86,7 +85,6 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
     amp.command(initial_voltage_V, -t_pre)
     for k in range(int(math.ceil(t_pre / 0.005)) + 1):
         amp.update(min(-t_pre + k * 0.005, 0.0))
-    rng = np.random.default_rng(rig.seed)
     n_samples = n_total // n_sample + 1
     t_out = np.empty(n_samples)
     true = np.empty(n_samples)
@@ -95,7 +93,6 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
     applied = np.empty(n_samples)
     pending: list = []          # (arrival tick, voltage)
     u_applied = amp.update(0.0)
-    q = rig.quantisation_m
     j = 0
     for i in range(n_total + 1):
         t = i * h
@@ -106,10 +103,8 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
             if applied_hook is not None:
                 applied_hook(t, u_applied)
         if i % n_sample == 0:
-            d = plant.state[0]
-            m = d + (float(rng.normal(0.0, rig.noise_m)) if rig.noise_m > 0 else 0.0)
-            if q > 0:
-                m = round(m / q) * q
+            d = plant.displacement_m
+            m = plant.laser_reading_m(d)
             t_out[j], true[j], meas[j], applied[j] = t, d, m, u_applied
             u_cmd = controller(t, m)
             if u_cmd is not None:
@@ -120,7 +115,7 @@ def run_closed_loop(rig: SimulatedRig, controller: Callable[[float, float], Opti
                     pending.append((i + n_lat, u_cmd))
             j += 1
         if i < n_total:
-            plant.step(u_applied, h)
+            plant.step(u_applied)
     return ClosedLoopResult(t_out[:j], true[:j], meas[:j], cmd[:j], applied[:j])
 
 

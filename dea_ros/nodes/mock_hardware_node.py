@@ -1,5 +1,10 @@
 """mock_hardware_node: the simulated rig (amplifier output stage, membrane with its mass, laser head).
 
+The node is a thin rclpy adapter around :mod:`dea_ros.sim` (parameters, topics, timers, ``/clock``):
+the physics is :class:`~dea_ros.sim.rig_simulator.RigSimulator`, the amplifier's output stage
+:class:`~dea_ros.sim.amplifier_receiver.MockAmplifierReceiver`, the serial laser
+:class:`~dea_ros.sim.ild1320_emulator.ILD1320Emulator`.
+
 The membrane is integrated with the core's fixed-step RK4 (``physics_dt_s``) with its own
 "true" parameters (``params_file``). It receives the amplifier's output from the ``mock``
 amplifier backend over UDP (``amplifier_port``), and measures the displacement like the
@@ -43,22 +48,22 @@ power), its output drops to 0 V by itself, as a real rig's interlock would.
 """
 from __future__ import annotations
 
-import collections
 import math
-import threading
 import time
 
-import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.node import Node
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock as RclClock, ClockType
+from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from std_msgs.msg import Header
 from sensor_msgs.msg import Range
+from std_msgs.msg import Header
 
-from ..hardware.amplifier_backends import MockAmplifierReceiver
-from ..model import ParameterError, load_parameters
-from ..solvers.integrate import RealTimeStepper
+from ..model import MembraneParameters, ParameterError, load_parameters
+from ..sim.amplifier_receiver import MockAmplifierReceiver
+from ..sim.ild1320_emulator import ILD1320Emulator
+from ..sim.plant import LASER_QUANTISATION_M
+from ..sim.rig_simulator import LaserSampler, RigSimulator
 from .common import (
     SENSOR_QOS,
     TOPIC_DISPLACEMENT,
@@ -69,104 +74,53 @@ from .common import (
     make_range,
     publish_diagnostic,
 )
+from .runner import run_node
 
-__all__ = ["MockHardwareNode", "RigSimulator", "main"]
-
-
-class RigSimulator:
-    """The physics of the mock rig, independent of ROS (thread-safe).
-
-    Time is an arbitrary monotonic axis in seconds (the wall clock's monotonic time in
-    real-time mode, the simulated clock otherwise). ``advance_to(t)`` integrates with the
-    voltage applied at that moment; ``measure(t)`` returns what the laser reads for an
-    acquisition at ``t`` (past values from a history buffer, linear interpolation).
-    """
-
-    def __init__(self, params, physics_dt_s: float, t0_s: float, noise_m: float, quantisation_m: float,
-                 latency_s: float, seed: int = 0, history_s: float = 2.0):
-        self.params = params
-        self.stepper = RealTimeStepper(params, dt_s=physics_dt_s)
-        self.dt_s = physics_dt_s
-        # Time is kept relative to t0: absolute epoch seconds (~1.8e9) resolve only ~0.2 us in
-        # float64, and summing physics steps there drifts step boundaries off the clock ticks.
-        self.t0_s = float(t0_s)
-        self.steps = 0
-        self.voltage_V = 0.0
-        self.noise_m = noise_m
-        self.quantisation_m = quantisation_m
-        self.latency_s = latency_s
-        self.rng = np.random.default_rng(seed)
-        self.lock = threading.Lock()
-        n = int(history_s / physics_dt_s) + 2
-        self.history = collections.deque(maxlen=n)   # (time relative to t0, displacement)
-        self.history.append((0.0, self.stepper.displacement_m))
-
-    @property
-    def t_s(self) -> float:
-        """Current simulation time (absolute, s)."""
-        return self.t0_s + self.steps * self.dt_s
-
-    def set_voltage(self, voltage_V: float) -> None:
-        with self.lock:
-            self.voltage_V = float(voltage_V)
-
-    def advance_to(self, t_s: float) -> None:
-        with self.lock:
-            self._advance_locked(t_s - self.t0_s)
-
-    #: times within this of a step boundary are on it (s): an epoch time in float64 (~1.8e9 s) carries
-    #: ~0.2 us of rounding, so t - t0 of a clock tick lands up to that far on either side of its step
-    BOUNDARY_TOLERANCE_S = 1e-6
-
-    def _advance_locked(self, t_rel: float) -> None:
-        # whole steps up to t: a tick that rounds to just below its boundary must still reach it, or the
-        # laser reads the position half a step old and the next voltage starts half a step early
-        target = int(math.floor((t_rel + self.BOUNDARY_TOLERANCE_S) / self.dt_s))
-        while self.steps < target:
-            self.stepper.step(self.voltage_V)
-            self.steps += 1
-            self.history.append((self.steps * self.dt_s, self.stepper.displacement_m))
-
-    def true_displacement_m(self, t_s: float) -> float:
-        """Displacement at t (interpolated in the history; the future is integrated first)."""
-        with self.lock:
-            t_rel = t_s - self.t0_s
-            if t_rel > self.steps * self.dt_s:
-                self._advance_locked(t_rel)
-            hist = self.history
-            if t_rel >= hist[-1][0]:
-                return hist[-1][1]
-            if t_rel <= hist[0][0]:
-                return hist[0][1]
-            lo, hi = 0, len(hist) - 1
-            while hi - lo > 1:
-                mid = (lo + hi) // 2
-                if hist[mid][0] <= t_rel:
-                    lo = mid
-                else:
-                    hi = mid
-            (ta, da), (tb, db) = hist[lo], hist[hi]
-            return da + (db - da) * (t_rel - ta) / (tb - ta)
-
-    def measure(self, t_acq_s: float) -> float:
-        """Laser reading for an acquisition at t: latency, noise, quantisation."""
-        d = self.true_displacement_m(t_acq_s - self.latency_s)
-        if self.noise_m > 0:
-            d += float(self.rng.normal(0.0, self.noise_m))
-        if self.quantisation_m > 0:
-            d = round(d / self.quantisation_m) * self.quantisation_m
-        return d
+__all__ = ["MockHardwareNode", "main"]
 
 
 class MockHardwareNode(Node):
+    """The simulated rig as a node: parameters, topics, timers and ``/clock`` around :mod:`dea_ros.sim`."""
+
     def __init__(self, **kwargs):
         super().__init__("mock_hardware_node", **kwargs)
-        source = declare_str(self, "params_file", "A2", "true membrane of the simulated rig (preset or YAML)")
+        self._declare_parameters()
+        params = self._membrane()
+        self.receiver = MockAmplifierReceiver(port=self.amplifier_port, deadman_timeout_s=self.amplifier_deadman_s)
+        self.tick_index = 0                      # /clock ticks published (simulated time)
+        self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
+        self.clock_time_s: float | None = None   # last /clock published
+        self.tick_wall_s = time.monotonic()      # wall time at which the current lockstep wait began
+        self.samples_out = True                  # the laser samples of the current tick are published
+        self.lockstep_timeouts = 0
+        self.ack_times: dict = {}
+        if self.publish_clock and self.lockstep:
+            for topic in self.lockstep_topics:
+                self.create_subscription(Header, topic, self.on_ack(topic), 10)
+        # simulated time starts at the wall-clock date (plausible bag stamps); real time runs on monotonic
+        t0 = time.time() if self.publish_clock else time.monotonic()
+        self.sim = RigSimulator(params, self.physics_dt_s, t0, self.noise_m, self.quantisation_m,
+                                self.sensor_latency_s, self.seed)
+        self.sim_t0 = t0
+        self.sampler = LaserSampler(self.sim, self.sample_rate_hz, t0)
+        self._create_laser_outputs()
+        self._create_clock_and_timers()
+        self.published = 0
+        self.get_logger().info(
+            f"mock rig: membrane {params.name}, noise {self.noise_m * 1e6:g} um, amplifier UDP port "
+            f"{self.receiver.port}, laser output {self.laser_output}"
+            + (f" ({self.emulator.port_path} -> {self.laser_port})" if self.emulator else "")
+            + (f", simulated time x{self.real_time_factor:g}" if self.publish_clock else ", real time")
+        )
+
+    def _declare_parameters(self) -> None:
+        """Declare every parameter (fixed at start-up) and keep its value as an attribute of the same name."""
+        self.params_file = declare_str(self, "params_file", "A2", "true membrane of the simulated rig (preset or YAML)")
         self.noise_m = declare_float(self, "noise_m", 1e-6, "laser noise, standard deviation, m", 0.0, 1e-3)
-        quant = declare_float(self, "quantisation_m", 10e-3 * 1.02 / 65520,
-                              "laser resolution, m (ILD1320-10: 0.156 um)",
-                              0.0, 1e-4)
-        latency = declare_float(self, "sensor_latency_s", 0.0, "laser latency, s", 0.0, 0.1)
+        self.quantisation_m = declare_float(self, "quantisation_m", LASER_QUANTISATION_M,
+                                            "laser resolution, m (ILD1320-10: 0.156 um)",
+                                            0.0, 1e-4)
+        self.sensor_latency_s = declare_float(self, "sensor_latency_s", 0.0, "laser latency, s", 0.0, 0.1)
         self.physics_dt_s = declare_float(self, "physics_dt_s", 0.5e-3, "RK4 step of the membrane, s",
                                           1e-5, 5e-3)
         self.sample_rate_hz = declare_float(self, "sample_rate_hz", 1000.0,
@@ -189,15 +143,18 @@ class MockHardwareNode(Node):
                                      "acted on the last tick")
         self.lockstep_timeout_s = declare_float(self, "lockstep_timeout_s", 0.5,
                                                 "wall-clock wait for the amplifier per tick, s", 0.001, 10.0)
-        deadman_s = declare_float(self, "amplifier_deadman_s", 0.5,
-                                  "the simulated amplifier drops to 0 V when no datagram came for this long "
-                                  "(wall clock), s", 0.01, 10.0)
-        acks = self.declare_parameter(
+        self.amplifier_deadman_s = declare_float(self, "amplifier_deadman_s", 0.5,
+                                                 "the simulated amplifier drops to 0 V when no datagram came for "
+                                                 "this long (wall clock), s", 0.01, 10.0)
+        self.lockstep_topics = self.declare_parameter(
             "lockstep_topics", ["identifier_node/tick_done"],
             ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
                                             "simulated clock advances (lockstep), e.g. identifier_node/tick_done, "
                                             "amplifier_node/command_received")).value
-        seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
+        self.seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
+
+    def _membrane(self) -> MembraneParameters:
+        """The true membrane (``params_file``), once the laser output and the clock are a valid combination."""
         if self.laser_output not in ("topic", "emulator", "both"):
             raise SystemExit(f"mock_hardware_node: parameter 'laser_output': topic, emulator or both, "
                              f"got {self.laser_output!r}")
@@ -205,38 +162,24 @@ class MockHardwareNode(Node):
             raise SystemExit("mock_hardware_node: with publish_clock (simulated time) laser_output must be "
                              "'topic' (the serial emulator streams in wall-clock time)")
         try:
-            params = load_parameters(source)
+            return load_parameters(self.params_file)
         except (ParameterError, FileNotFoundError) as exc:
             raise SystemExit(f"mock_hardware_node: parameter 'params_file': {exc}") from None
-        self.receiver = MockAmplifierReceiver(port=self.amplifier_port, deadman_timeout_s=deadman_s)
-        self.tick_index = 0                      # /clock ticks published (simulated time)
-        self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
-        self.clock_time_s: float | None = None   # last /clock published
-        self.tick_wall_s = time.monotonic()      # wall time at which the current lockstep wait began
-        self.samples_out = True                  # the laser samples of the current tick are published
-        self.lockstep_timeouts = 0
-        self.ack_times: dict = {}
-        if self.publish_clock and self.lockstep:
-            for topic in acks:
-                self.create_subscription(Header, topic, self.on_ack(topic), 10)
-        # simulated time starts at the wall-clock date (plausible bag stamps); real time runs on monotonic
-        t0 = time.time() if self.publish_clock else time.monotonic()
-        self.sim = RigSimulator(params, self.physics_dt_s, t0, self.noise_m, quant, latency, seed)
-        self.sim_t0 = t0
-        self.next_sample_index = 1
-        self.sample_t0 = t0
+
+    def _create_laser_outputs(self) -> None:
+        """The ``displacement`` publisher (topic) and the serial emulator (emulator), as ``laser_output`` asks."""
         self.range_pub = None
         if self.laser_output in ("topic", "both"):
             self.range_pub = self.create_publisher(Range, TOPIC_DISPLACEMENT, SENSOR_QOS)
         self.emulator = None
         if self.laser_output in ("emulator", "both"):
-            from ..hardware.ild1320_emulator import ILD1320Emulator
-
             standoff = self.laser_standoff_m
             self.emulator = ILD1320Emulator(
                 lambda t: standoff + self.sim.measure(t), measuring_rate_hz=2000.0, symlink=self.laser_port,
-                seed=seed,
             ).start()
+
+    def _create_clock_and_timers(self) -> None:
+        """``/clock`` and the tick timer (simulated time), or the real-time timer; the diagnostics."""
         self.clock_pub = None
         if self.publish_clock:
             self.clock_pub = self.create_publisher(Clock, "/clock", 10)
@@ -250,43 +193,31 @@ class MockHardwareNode(Node):
         self.mono_to_ros = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(1.0, self.publish_diagnostics, clock=_wall_clock())
-        self.published = 0
-        self.get_logger().info(
-            f"mock rig: membrane {params.name}, noise {self.noise_m * 1e6:g} um, amplifier UDP port "
-            f"{self.receiver.port}, laser output {self.laser_output}"
-            + (f" ({self.emulator.port_path} -> {self.laser_port})" if self.emulator else "")
-            + (f", simulated time x{self.real_time_factor:g}" if self.publish_clock else ", real time")
-        )
 
     # ------------------------------------------------------------------ time
     def poll_amplifier(self) -> None:
-        """Apply the amplifier's latest output.
+        """Apply the amplifier's outputs received since the last poll, each from its send time.
 
-        In real time the datagram carries the amplifier's monotonic send time (same
-        host, same clock): the membrane is integrated up to that instant with the
-        previous voltage before the new one is applied, so executor and transport
-        delays do not shift the physics. In simulated time the voltage applies now.
+        In real time the datagram carries the amplifier's monotonic send time (same host, same
+        clock; a time in the future applies now); in simulated time it is stamped with the
+        simulated clock (use_sim_time). The simulator integrates up to that instant with the
+        previous voltage first, so executor and transport delays do not shift the physics.
         """
         for received in self.receiver.poll_all():
             if self.publish_clock:
-                # stamped with the simulated clock by the amplifier node (use_sim_time)
                 self.amp_time_s = max(self.amp_time_s or received.sent_s, received.sent_s)
-                self.sim.advance_to(max(received.sent_s, self.sim.t_s))
-            elif received.sent_s <= time.monotonic():
-                self.sim.advance_to(max(received.sent_s, self.sim.t_s))
-            self.sim.set_voltage(received.voltage_V)
+                self.sim.apply_voltage(received.voltage_V, from_s=received.sent_s)
+            else:
+                sent_s = received.sent_s if received.sent_s <= time.monotonic() else None
+                self.sim.apply_voltage(received.voltage_V, from_s=sent_s)
         if self.receiver.applied_voltage_V() == 0.0 and self.sim.voltage_V != 0.0:
-            self.sim.set_voltage(0.0)  # the dead-man expired: the amplifier's output is off
+            self.sim.apply_voltage(0.0)  # the dead-man expired: the amplifier's output is off
 
     def emit_samples(self, t_end: float, to_ros_offset: float) -> None:
         """Publish laser samples acquired up to t_end (simulation time axis)."""
         if self.range_pub is None:
             return
-        period = 1.0 / self.sample_rate_hz
-        while self.sample_t0 + self.next_sample_index * period <= t_end + RigSimulator.BOUNDARY_TOLERANCE_S:
-            t_acq = self.sample_t0 + self.next_sample_index * period
-            self.next_sample_index += 1
-            d = self.sim.measure(t_acq)
+        for t_acq, d in self.sampler.samples_until(t_end):
             t_ros_ns = int(round((t_acq + to_ros_offset) * 1e9))
             self.range_pub.publish(make_range(d, t_ros_ns, "dea_laser"))
             self.published += 1
@@ -380,7 +311,7 @@ class MockHardwareNode(Node):
             self, self.diag_pub, f"{self.get_name()}: simulated rig", self.sim.params.name,
             DiagnosticStatus.OK, "running",
             [("voltage_V", f"{self.sim.voltage_V:.1f}"),
-             ("displacement_m", f"{self.sim.stepper.displacement_m:.9f}"),
+             ("displacement_m", f"{self.sim.displacement_m:.9f}"),
              ("physics_steps", self.sim.steps), ("samples_published", self.published),
              ("amplifier_datagrams", self.receiver.received_count), ("sim_lag_s", f"{lag:.3f}"),
              ("amplifier_deadman_trips", self.receiver.deadman_trip_count),
@@ -400,15 +331,12 @@ class MockHardwareNode(Node):
         return super().destroy_node()
 
 
-def _wall_clock():
-    from rclpy.clock import Clock as RclClock, ClockType
-
+def _wall_clock() -> RclClock:
+    """The steady clock: timers that must not follow a simulated /clock."""
     return RclClock(clock_type=ClockType.STEADY_TIME)
 
 
 def main(args=None) -> None:
-    from .runner import run_node
-
     run_node(MockHardwareNode, args)
 
 

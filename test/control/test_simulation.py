@@ -2,7 +2,8 @@
 import numpy as np
 
 from dea_ros.control import loop_delays
-from dea_ros.hardware.amplifier_safety import SafeVoltageController, SafetyLimits
+from dea_ros.hardware.amplifier.limits import SafetyLimits
+from dea_ros.hardware.amplifier.safety import SafeVoltageController
 
 PERIOD = 1e-3
 SLEW = 1e5

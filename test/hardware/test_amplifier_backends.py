@@ -1,4 +1,4 @@
-"""Tests of dea_ros.hardware.amplifier_backends: in-process, UDP mock pair, uldaq (faked)."""
+"""Tests of the amplifier backends (dea_ros.hardware.amplifier): in-process, UDP mock pair, uldaq (faked)."""
 from __future__ import annotations
 
 import importlib.abc
@@ -13,24 +13,24 @@ import warnings
 
 import pytest
 
-from dea_ros.hardware.amplifier_backends import (
-    DATAGRAM_SIZE,
+from dea_ros.errors import AmplifierBackendError, AmplifierRangeWarning
+from dea_ros.hardware.amplifier.base import AmplifierBackend
+from dea_ros.hardware.amplifier.inprocess import InProcessAmplifierBackend
+from dea_ros.hardware.amplifier.rig_description import (
     AmplifierRigExpectation,
     DaqBoardInfo,
     choose_daq_range,
     describe_amplifier_rig,
-    query_uldaq_board,
-    AmplifierBackend,
-    AmplifierBackendError,
-    AmplifierRangeWarning,
-    InProcessAmplifierBackend,
-    MockAmplifierBackend,
-    MockAmplifierReceiver,
-    UldaqAmplifierBackend,
-    decode_voltage_datagram,
-    encode_voltage_datagram,
     parse_daq_range,
 )
+from dea_ros.hardware.amplifier.udp import (
+    DATAGRAM_SIZE,
+    MockAmplifierBackend,
+    decode_voltage_datagram,
+    encode_voltage_datagram,
+)
+from dea_ros.hardware.amplifier.uldaq import UldaqAmplifierBackend, query_uldaq_board
+from dea_ros.sim.amplifier_receiver import MockAmplifierReceiver
 
 
 # =========================================================================== interface + in-process
@@ -238,7 +238,7 @@ def _load_fake():
     import importlib.util
     from pathlib import Path
 
-    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).with_name("fake_uldaq.py"))
+    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).parents[1] / "fakes" / "fake_uldaq.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -655,7 +655,7 @@ class TestUldaqImport:
             quiet_backend().open()
 
     def test_module_import_does_not_need_uldaq(self):
-        import dea_ros.hardware.amplifier_backends as module
+        import dea_ros.hardware.amplifier.uldaq as module
 
         assert "uldaq" not in vars(module)
 
@@ -667,7 +667,7 @@ class TestAmplifierConfig:
 
         import yaml
 
-        from dea_ros.hardware.amplifier_backends import amplifier_config_from_parameters
+        from dea_ros.hardware.amplifier.config import amplifier_config_from_parameters
 
         path = Path(__file__).resolve().parents[2] / "config" / "amplifier.yaml"
         values = yaml.safe_load(path.read_text())["/**/amplifier_node"]["ros__parameters"]
@@ -686,7 +686,7 @@ class TestAmplifierConfig:
         ({"params_file": "/nonexistent/membrane.yaml"}, "no such parameters file"),
     ])
     def test_slips_are_named(self, values, message):
-        from dea_ros.hardware.amplifier_backends import amplifier_config_from_parameters
+        from dea_ros.hardware.amplifier.config import amplifier_config_from_parameters
 
         with pytest.raises(ValueError, match=message):
             amplifier_config_from_parameters(values)

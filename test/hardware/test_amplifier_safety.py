@@ -1,4 +1,4 @@
-"""Tests of dea_ros.hardware.amplifier_safety: limits, the safe voltage state machine, fuzzing."""
+"""Tests of dea_ros.hardware.amplifier.limits and .safety: limits, the safe voltage state machine, fuzzing."""
 from __future__ import annotations
 
 import math
@@ -7,16 +7,10 @@ import random
 import numpy as np
 import pytest
 
-from dea_ros.hardware.amplifier_safety import (
-    ControlClock,
-    ControllerState,
-    RejectionReason,
-    SafeVoltageController,
-    SafetyConfigError,
-    SafetyLimits,
-    drive_to_zero,
-    membrane_voltage_limit_V,
-)
+from dea_ros.errors import SafetyConfigError
+from dea_ros.hardware.amplifier.limits import SafetyLimits, membrane_voltage_limit_V
+from dea_ros.hardware.amplifier.safety import ControlClock, ControllerState, RejectionReason, SafeVoltageController, \
+    drive_to_zero
 
 LIMITS = SafetyLimits(
     max_voltage_V=3000.0, slew_rate_V_per_s=1000.0, watchdog_timeout_s=0.5, ramp_down_rate_V_per_s=500.0

@@ -7,21 +7,30 @@ from the truth.
 """
 from __future__ import annotations
 
+import importlib.util
 import math
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
-from dea_ros.hardware.ild1320_emulator import ILD1320Emulator
-from dea_ros.hardware.ild1320_protocol import (
-    DEFAULT_JUMP_TOLERANCE_M,
-    DEFAULT_MAX_SPEED_M_PER_S,
-    LaserSensorExpectation,
-    quantum_m,
-)
-from dea_ros.hardware.ild1320_sensor import ILD1320Sensor, describe_ild1320
+from dea_ros.hardware.laser.ild1320_protocol import LaserSensorExpectation, quantum_m
+from dea_ros.hardware.laser.ild1320_serial import ILD1320Sensor, describe_ild1320
+from dea_ros.hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
 from dea_ros.hardware.laser import MeasurementError, SensorConfigurationError, SensorDisconnected, SensorError
+from dea_ros.sim.ild1320_emulator import ILD1320Emulator
+
+
+def _load_fake(name: str):
+    """A test double of test/fakes, loaded by path (the suite runs with --import-mode=importlib)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "fakes" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+FaultyILD1320Emulator = _load_fake("faulty_ild1320").FaultyILD1320Emulator
 
 MR = 0.010
 Q = quantum_m(MR)
@@ -91,7 +100,7 @@ def test_a_previous_users_settings_are_reported_then_reset_and_readings_match_th
 
 @pytest.mark.parametrize("rate_text", ["0", "7", "4", "-2", "nan", "x"])
 def test_a_bad_measrate_reply_is_a_clear_error_not_a_crash(no_leaked_threads, rate_text):
-    with ILD1320Emulator(truth) as emu:
+    with FaultyILD1320Emulator(truth) as emu:
         emu.misbehave(reported_rate_khz=rate_text)
         dev = ILD1320Sensor(emu.port_path, measuring_range_m=MR, measuring_rate_hz=2000.0)
         with pytest.raises(SensorError) as err:
@@ -110,7 +119,7 @@ def test_a_bad_measrate_reply_is_a_clear_error_not_a_crash(no_leaked_threads, ra
 
 
 def test_a_wrong_measuring_range_or_model_is_refused_with_the_mismatch(no_leaked_threads):
-    with ILD1320Emulator(truth) as emu:
+    with FaultyILD1320Emulator(truth) as emu:
         emu.misbehave(reported_range_mm=1000.0)
         dev = ILD1320Sensor(emu.port_path, measuring_range_m=MR)
         with pytest.raises(SensorConfigurationError) as err:
@@ -131,7 +140,7 @@ def test_a_wrong_measuring_range_or_model_is_refused_with_the_mismatch(no_leaked
 
 
 def test_settings_that_do_not_read_back_and_garbage_replies_are_errors(no_leaked_threads):
-    with ILD1320Emulator(truth, mastering=(0.003, 0.001)) as emu:
+    with FaultyILD1320Emulator(truth, mastering=(0.003, 0.001)) as emu:
         dev = ILD1320Sensor(emu.port_path, measuring_range_m=MR, timeout_s=0.2)
         emu.misbehave(ignored_commands=["MASTERMV"])  # acknowledged, not applied
         with pytest.raises(SensorError, match="MASTERMV reads back"):
@@ -151,7 +160,7 @@ def test_settings_that_do_not_read_back_and_garbage_replies_are_errors(no_leaked
 
 
 def test_a_corrupted_stream_never_yields_a_value_far_from_the_truth(no_leaked_threads):
-    with ILD1320Emulator(truth, seed=3) as emu, ILD1320Sensor(
+    with FaultyILD1320Emulator(truth, seed=3) as emu, ILD1320Sensor(
             emu.port_path, measuring_range_m=MR, min_no_data_timeout_s=NO_DATA_S) as dev:
         read_for(dev, 0.05)
         emu.misbehave(drop_byte_probability=0.01, random_byte_probability=0.01)

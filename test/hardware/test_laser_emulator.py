@@ -1,21 +1,17 @@
 """ILD1320 emulator on a pty, the pyserial backend against it, and the mock sensor."""
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 import statistics
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
-from dea_ros.hardware.ild1320_emulator import (
-    ERROR_INVALID_PARAMETER,
-    ERROR_UNKNOWN_COMMAND,
-    ILD1320Emulator,
-    MockDisplacementSensor,
-)
-from dea_ros.hardware.ild1320_protocol import (
+from dea_ros.hardware.laser.ild1320_protocol import (
     CommandError,
     FrameDecoder,
     command_bytes,
@@ -23,7 +19,8 @@ from dea_ros.hardware.ild1320_protocol import (
     parse_reply,
     quantum_m,
 )
-from dea_ros.hardware.ild1320_sensor import ILD1320Sensor, SampleClock
+from dea_ros.hardware.laser.ild1320_serial import ILD1320Sensor
+from dea_ros.hardware.laser.sample_clock import SampleClock
 from dea_ros.hardware.laser import (
     DisplacementReading,
     DisplacementSensor,
@@ -31,6 +28,21 @@ from dea_ros.hardware.laser import (
     SensorDisconnected,
     SensorError,
 )
+from dea_ros.sim.ild1320_device import ERROR_INVALID_PARAMETER, ERROR_UNKNOWN_COMMAND
+from dea_ros.sim.ild1320_emulator import ILD1320Emulator
+from dea_ros.sim.mock_sensor import MockDisplacementSensor
+
+
+def _load_fake(name: str):
+    """A test double of test/fakes, loaded by path (the suite runs with --import-mode=importlib)."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "fakes" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+FaultyILD1320Emulator = _load_fake("faulty_ild1320").FaultyILD1320Emulator
+PausableMockSensor = _load_fake("faulty_mock_sensor").PausableMockSensor
 
 Q = quantum_m(0.010)
 
@@ -65,7 +77,7 @@ def no_leaked_threads():
 
 @pytest.fixture
 def emulator(no_leaked_threads):
-    emu = ILD1320Emulator(sine_source, record_limit=50_000, seed=1)
+    emu = FaultyILD1320Emulator(sine_source, record_limit=50_000, seed=1)
     emu.start()
     try:
         yield emu
@@ -459,7 +471,7 @@ def test_mock_sensor_samples_the_source_at_exact_times():
 def test_mock_sensor_errors_tare_rate_and_pause():
     clock = FakeClock()
     source = Switchable(0.0115)
-    mock = MockDisplacementSensor(source, clock=clock)
+    mock = PausableMockSensor(source, clock=clock)
     mock.open()
     clock.t += 0.001
     assert {r.value for r in mock.read_batch()} == {MeasurementError.TARGET_TOO_FAR}

@@ -11,16 +11,13 @@ import random
 
 import pytest
 
-from dea_ros.hardware.ild1320_protocol import (
-    DEFAULT_JUMP_TOLERANCE_M,
-    DEFAULT_MAX_SPEED_M_PER_S,
+from dea_ros.hardware.laser.ild1320_protocol import (
     EMR_CODE,
     SMR_CODE,
     CommandReply,
     FrameDecoder,
     LaserSensorExpectation,
     LaserSensorSettings,
-    PlausibilityFilter,
     check_laser_sensor,
     code_to_displacement_m,
     displacement_to_code,
@@ -39,6 +36,7 @@ from dea_ros.hardware.ild1320_protocol import (
     quantum_m,
 )
 from dea_ros.hardware.laser import MeasurementError, SensorError
+from dea_ros.hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S, PlausibilityFilter
 
 MR = 0.010
 Q = quantum_m(MR)

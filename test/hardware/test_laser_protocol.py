@@ -6,8 +6,8 @@ import random
 
 import pytest
 
-from dea_ros.hardware import ild1320_protocol as proto
-from dea_ros.hardware.ild1320_protocol import (
+from dea_ros.hardware.laser import ild1320_protocol as proto
+from dea_ros.hardware.laser.ild1320_protocol import (
     ALLOWED_MEASURING_RATES_HZ,
     DEFAULT_MEASURING_RANGE_M,
     DISTANCE_CODE_MAX,
@@ -43,7 +43,7 @@ from dea_ros.hardware.ild1320_protocol import (
     render_reply,
     validate_measuring_rate_hz,
 )
-from dea_ros.hardware.ild1320_sensor import SampleClock
+from dea_ros.hardware.laser.sample_clock import SampleClock
 from dea_ros.hardware.laser import DisplacementReading, MeasurementError, SensorError
 
 MR = DEFAULT_MEASURING_RANGE_M

@@ -115,7 +115,7 @@ def test_the_simulated_membrane_reaches_every_clock_tick_of_an_epoch_time_axis()
     Every tick must integrate exactly up to it (a step short: the laser reads the position half a step old
     and the amplifier's next voltage starts half a step early, a random 0.5 ms timing error)."""
     from dea_ros.model import preset
-    from dea_ros.nodes.mock_hardware_node import RigSimulator
+    from dea_ros.sim.rig_simulator import RigSimulator
 
     t0 = 1795437000.123
     sim = RigSimulator(preset("A2"), 5e-4, t0, noise_m=0.0, quantisation_m=0.0, latency_s=0.0)

@@ -2,9 +2,9 @@
 
 The DEA rig measures the displacement ``d`` of the mass carried by the membrane
 with a laser triangulation sensor. Every backend (the Micro-Epsilon ILD1320 on a
-serial port, :class:`~dea_ros.hardware.ild1320_emulator.MockDisplacementSensor`,
-...) implements :class:`DisplacementSensor`, so the ROS node never depends on a
-particular device.
+serial port, :class:`~dea_ros.hardware.laser.ild1320_serial.ILD1320Sensor`; the
+simulated :class:`~dea_ros.sim.mock_sensor.MockDisplacementSensor`, ...) implements
+:class:`DisplacementSensor`, so the ROS node never depends on a particular device.
 
 Units: displacements in metres, times in seconds, rates in hertz.
 
@@ -26,8 +26,9 @@ from __future__ import annotations
 import abc
 import enum
 import math
-from typing import NamedTuple, Optional, Union
-from ..errors import SensorConfigurationError, SensorDisconnected, SensorError
+from typing import NamedTuple
+
+from ...errors import SensorConfigurationError, SensorDisconnected, SensorError
 
 __all__ = [
     "MeasurementError",
@@ -37,6 +38,7 @@ __all__ = [
     "SensorConfigurationError",
     "DisplacementSensor",
     "validated_tare_offset_m",
+    "validated_measuring_range_m",
 ]
 
 
@@ -65,7 +67,7 @@ class MeasurementError(str, enum.Enum):
     UNKNOWN_CODE = "unknown_code"
 
     # -- discarded by the backend's plausibility checks (the sensor sent a distance,
-    #    but the value cannot be trusted; see ild1320_protocol.PlausibilityFilter)
+    #    but the value cannot be trusted; see :class:`~dea_ros.hardware.laser.plausibility.PlausibilityFilter`)
     #: A distance in the reserve before the start or after the end of the
     #: measuring range (the sensor is not specified there).
     OUTSIDE_MEASURING_RANGE = "outside_measuring_range"
@@ -90,7 +92,7 @@ class DisplacementReading(NamedTuple):
     """
 
     acquisition_time_s: float
-    value: Union[float, MeasurementError]
+    value: float | MeasurementError
 
     @property
     def is_valid(self) -> bool:
@@ -98,14 +100,22 @@ class DisplacementReading(NamedTuple):
         return not isinstance(self.value, MeasurementError)
 
     @property
-    def displacement_m(self) -> Optional[float]:
+    def displacement_m(self) -> float | None:
         """Displacement in metres, or ``None`` for an error sample."""
         return None if isinstance(self.value, MeasurementError) else float(self.value)
 
     @property
-    def error(self) -> Optional[MeasurementError]:
+    def error(self) -> MeasurementError | None:
         """The error of an error sample, or ``None`` for a valid one."""
         return self.value if isinstance(self.value, MeasurementError) else None
+
+
+def validated_measuring_range_m(measuring_range_m: float) -> float:
+    """Return ``measuring_range_m`` as a float; raise ``ValueError`` unless it is a positive number of metres."""
+    value = float(measuring_range_m)
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"measuring range must be a positive number of metres, got {measuring_range_m!r}")
+    return value
 
 
 def validated_tare_offset_m(offset_m: float) -> float:
@@ -174,7 +184,7 @@ class DisplacementSensor(abc.ABC):
         Implementations validate with :func:`validated_tare_offset_m`.
         """
 
-    def diagnostic_counters(self) -> "dict[str, int]":
+    def diagnostic_counters(self) -> dict[str, int]:
         """Cumulative counters of the backend (bytes and frames discarded, ...), for diagnostics.
 
         Keys are stable snake_case names; the default backend has none.
