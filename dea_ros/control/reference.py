@@ -26,6 +26,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 
@@ -141,8 +142,6 @@ class PiecewiseQuintic(Trajectory):
             )
         v_given = self._optional(velocities, t.size, "velocities")
         a_given = self._optional(accelerations, t.size, "accelerations")
-        from scipy.interpolate import CubicSpline
-
         v0 = v_given[0] if np.isfinite(v_given[0]) else 0.0
         v1 = v_given[-1] if np.isfinite(v_given[-1]) else 0.0
         spline = CubicSpline(t, p, bc_type=((1, v0), (1, v1)))
