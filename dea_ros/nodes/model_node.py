@@ -49,6 +49,7 @@ from .common import (
     make_range,
     publish_diagnostic,
 )
+from .runner import run_node
 
 __all__ = ["ModelNode", "main"]
 
@@ -228,8 +229,7 @@ class ModelNode(Node):
 
 
 def main(args=None) -> None:
-    from .runner import run_node
-
+    """``ros2 run dea_ros model_node``."""
     run_node(ModelNode, args)
 
 

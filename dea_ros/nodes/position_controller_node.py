@@ -38,6 +38,7 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 from __future__ import annotations
 
 import math
+import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -68,6 +69,7 @@ from .common import (
     s_to_stamp,
     stamp_to_s,
 )
+from .runner import run_nodes
 
 __all__ = ["PositionControllerNode", "main", "TOPIC_SETPOINT", "TOPIC_TRAJECTORY", "TOPIC_JOINT_STATES"]
 
@@ -450,10 +452,6 @@ class PositionControllerNode(LifecycleNode):
 
 def main(args=None) -> None:
     """``ros2 run dea_ros position_controller_node``; ``-p autostart:=true`` configures and activates."""
-    import sys
-
-    from .runner import run_nodes
-
     def factory():
         node = PositionControllerNode()
         if node.declare_parameter("autostart", False).value:
