@@ -6,12 +6,15 @@
   and the feasibility check (u^2 >= 0, voltage and slew limits);
 * :mod:`.feedback`: PID on u^2 with gains by pole placement on the identified model;
 * :mod:`.controller`: :class:`PositionController`, one call per laser sample;
+* :mod:`.monitor`: the laser stream (stale, skipped and invalid samples, the filtered velocity) and the
+  tracking error between reports;
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
+from .monitor import SampleStream, TrackingWindow
 from .reference import (
     Feasibility,
     Hold,
@@ -21,6 +24,7 @@ from .reference import (
     Trajectory,
     check_trajectory,
     plan_move,
+    trajectory_from_points,
 )
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
 
@@ -28,5 +32,6 @@ __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
     "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
+    "trajectory_from_points", "SampleStream", "TrackingWindow",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
 ]
