@@ -64,6 +64,7 @@ from .common import (
     declare_bool,
     declare_float,
     declare_str,
+    stamp_to_ns,
 )
 from .runner import run_nodes
 
@@ -333,7 +334,7 @@ class IdentifierNode(Node):
 
     def on_applied_voltage(self, msg: BatteryState) -> None:
         """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = stamp_to_ns(msg.header.stamp)
         if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
             self.last_trigger_ns = stamp_ns
             self.on_tick(stamp_ns)

@@ -50,6 +50,7 @@ from .common import (
     declare_str,
     make_range,
     publish_diagnostic,
+    stamp_to_ns,
 )
 from .runner import run_node
 
@@ -134,7 +135,7 @@ class ModelNode(Node):
         u = float(msg.voltage) if msg.present else 0.0
         if not math.isfinite(u):
             return
-        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        t_ns = stamp_to_ns(msg.header.stamp)
         if not self.predictor.input(t_ns, u):
             return
         self.last_input_ns = self.now_ns()
