@@ -1,4 +1,4 @@
-"""Position control of the DEA (no ROS): model inversion, reference shaping, feedback on u^2.
+"""Position control of the DEA (no ROS): model inversion, reference shaping, feedback on u^2, prediction.
 
 * :mod:`.inverse`: static inverse (eq. 20) with the reachable range, dynamic inverse (eq. 5 solved
   for u^2) and the viscoelastic strain integrated along the reference (eq. 11);
@@ -6,12 +6,18 @@
   and the feasibility check (u^2 >= 0, voltage and slew limits);
 * :mod:`.feedback`: PID on u^2 with gains by pole placement on the identified model;
 * :mod:`.controller`: :class:`PositionController`, one call per laser sample;
+* :mod:`.monitor`: the laser stream (stale, skipped and invalid samples, the filtered velocity) and the
+  tracking error between reports;
+* :mod:`.prediction`: :class:`ModelPredictor`, the displacement predicted in real time from stamped applied
+  voltages (model_node);
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
+from .monitor import SampleStream, TrackingWindow
+from .prediction import ModelPredictor
 from .reference import (
     Feasibility,
     Hold,
@@ -21,6 +27,7 @@ from .reference import (
     Trajectory,
     check_trajectory,
     plan_move,
+    trajectory_from_points,
 )
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
 
@@ -28,5 +35,6 @@ __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
     "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
+    "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
 ]

@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..errors import SafetyConfigError
+from ..hardware.amplifier_safety import membrane_voltage_limit_V
 from ..model import MembraneParameters
 from .feedback import FeedbackGains, PIDOnU2, design_gains
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
@@ -58,6 +60,20 @@ class ControllerConfig:
             raise ValueError(f"loop_delay_s: must be >= 0 s, got {self.loop_delay_s!r}")
         if self.feedforward_slew_fraction > 1.0:
             raise ValueError("feedforward_slew_fraction: must be in (0, 1]")
+
+    @classmethod
+    def for_membrane(cls, params: MembraneParameters, margin: float, max_voltage_V: float = 0.0,
+                     **settings) -> "ControllerConfig":
+        """The settings for a membrane: the highest command is ``max_voltage_V`` or, when 0, the membrane's
+        limit margin x breakdown field x thickness (as amplifier_node's); a ``max_voltage_V`` above that limit
+        is refused (:class:`~dea_ros.errors.SafetyConfigError`). ``settings``: the other fields."""
+        limit = membrane_voltage_limit_V(params.thickness_m, params.breakdown_field_V_per_m, float(margin))
+        configured = float(max_voltage_V)
+        if configured > limit:
+            raise SafetyConfigError(
+                f"parameter 'max_voltage_V': {configured} V exceeds the membrane limit {limit:.6g} V (margin x "
+                "breakdown field x thickness); lower it or set 0 to use the limit")
+        return cls(max_voltage_V=configured if configured > 0 else limit, **settings)
 
     @property
     def lead_s(self) -> float:

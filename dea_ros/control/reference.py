@@ -10,7 +10,8 @@ has relative degree 2 from u^2 to d), so every reference here is at least C^2:
   quintic Hermite segments through the given positions, velocities and accelerations; where
   velocities or accelerations are not given, those of the C^2 cubic spline through the positions
   (a positions-only trajectory is that spline between its second and second-to-last points), with
-  zero velocity and acceleration at the ends unless given;
+  zero velocity and acceleration at the ends unless given; :func:`trajectory_from_points` builds
+  one that continues the current reference;
 * :class:`SineReference` -- c + A sin(2 pi f t) faded in over whole periods by a C^2 envelope.
 
 :func:`check_trajectory` integrates the viscoelastic strain along a reference, evaluates the
@@ -26,13 +27,17 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 
 __all__ = [
     "Trajectory", "Hold", "QuinticMove", "PiecewiseQuintic", "SineReference",
-    "Feasibility", "check_trajectory", "plan_move",
+    "Feasibility", "check_trajectory", "plan_move", "trajectory_from_points",
 ]
+
+#: Points due within this time of now (s) are in the past for :func:`trajectory_from_points`.
+PAST_TOLERANCE_S = 1e-4
 
 
 class Trajectory:
@@ -141,8 +146,6 @@ class PiecewiseQuintic(Trajectory):
             )
         v_given = self._optional(velocities, t.size, "velocities")
         a_given = self._optional(accelerations, t.size, "accelerations")
-        from scipy.interpolate import CubicSpline
-
         v0 = v_given[0] if np.isfinite(v_given[0]) else 0.0
         v1 = v_given[-1] if np.isfinite(v_given[-1]) else 0.0
         spline = CubicSpline(t, p, bc_type=((1, v0), (1, v1)))
@@ -182,6 +185,31 @@ class PiecewiseQuintic(Trajectory):
             return float(self.positions[0]), float(self.velocities[0]), float(self.accelerations[0])
         i = int(np.searchsorted(t, t_s, side="right")) - 1
         return _eval_quintic(self._coef[i], t_s - t[i])
+
+
+def trajectory_from_points(now_s: float, state, points) -> PiecewiseQuintic:
+    """A trajectory that continues the current reference through timed points.
+
+    ``state``: (d, v, a) of the current reference at ``now_s`` (m, m/s, m/s^2), the first knot;
+    ``points``: (time s, position m, velocity m/s or None, acceleration m/s^2 or None) in time order,
+    times absolute (a JointTrajectory's stamp + time_from_start). Points due at or before now (within
+    :data:`PAST_TOLERANCE_S`) are left out: the current reference stands for them. The last
+    velocity defaults to rest. ValueError when no point is left (or from :class:`PiecewiseQuintic`).
+    """
+    d0, v0, a0 = state
+    times, pos, vel, acc = [now_s], [d0], [v0], [a0]
+    for t, position, velocity, acceleration in points:
+        if t <= now_s + PAST_TOLERANCE_S:
+            continue            # in the past (or now): the current reference stands for it
+        times.append(t)
+        pos.append(float(position))
+        vel.append(None if velocity is None else float(velocity))
+        acc.append(None if acceleration is None else float(acceleration))
+    if len(times) < 2:
+        raise ValueError("every point is in the past (header.stamp + time_from_start <= now)")
+    if vel[-1] is None:
+        vel[-1] = 0.0
+    return PiecewiseQuintic(times, pos, vel, acc)
 
 
 class SineReference(Trajectory):

@@ -38,12 +38,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
 import yaml
+
 from ..errors import ParameterError
+
+try:  # optional: the ament index of a sourced ROS 2 workspace (absent outside ROS)
+    from ament_index_python.packages import get_package_share_directory
+except ImportError:
+    get_package_share_directory = None
 
 __all__ = [
     "MembraneParameters",
@@ -387,14 +394,11 @@ def config_dir() -> Path:
     candidates = [here.parents[2] / "config"]  # source tree: <repo>/dea_ros/model/parameters.py
     # installed: <prefix>/lib/pythonX.Y/site-packages/dea_ros/model/parameters.py -> <prefix>/share/dea_ros/config
     candidates += [parent / "share" / "dea_ros" / "config" for parent in here.parents]
-    try:  # a sourced ROS 2 workspace
-        from ament_index_python.packages import get_package_share_directory  # type: ignore
-
-        candidates.append(Path(get_package_share_directory("dea_ros")) / "config")
-    except Exception:  # noqa: BLE001 - ament index absent outside ROS
-        pass
-    import sys
-
+    if get_package_share_directory is not None:  # a sourced ROS 2 workspace
+        try:
+            candidates.append(Path(get_package_share_directory("dea_ros")) / "config")
+        except Exception:  # noqa: BLE001 - dea_ros not in the ament index
+            pass
     candidates.append(Path(sys.prefix) / "share" / "dea_ros" / "config")
     for c in candidates:
         if (c / "membranes").is_dir():

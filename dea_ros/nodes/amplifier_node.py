@@ -41,11 +41,13 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Header
@@ -76,6 +78,7 @@ from .common import (
     make_voltage_state,
     publish_diagnostic,
 )
+from .runner import run_nodes
 
 __all__ = ["AmplifierNode", "main", "PARAMETERS", "SIM_CLOCK_STALL_S"]
 
@@ -466,12 +469,6 @@ def main(args=None) -> None:
 
     Exits with code 2 (and a message naming the parameter) when the parameters are refused.
     """
-    import sys
-
-    from rclpy.exceptions import ParameterException
-
-    from .runner import run_nodes
-
     def factory():
         try:
             node = AmplifierNode()

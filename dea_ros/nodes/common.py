@@ -38,7 +38,7 @@ from sensor_msgs.msg import BatteryState, Range
 __all__ = [
     "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
-    "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "s_to_stamp", "publish_diagnostic",
+    "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
 ]
 
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
@@ -97,7 +97,13 @@ def declare_bool(node: Node, name: str, default: bool, description: str) -> bool
 
 
 def stamp_to_s(stamp) -> float:
+    """A builtin_interfaces/Time in seconds."""
     return stamp.sec + stamp.nanosec * 1e-9
+
+
+def stamp_to_ns(stamp) -> int:
+    """A builtin_interfaces/Time in integer nanoseconds (exact)."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def s_to_stamp(t_s: float, stamp) -> None:

@@ -33,6 +33,7 @@ reports ``state: error`` with the cause, and the node exits with code 1.
 from __future__ import annotations
 
 import json
+import sys
 import threading
 import time
 import traceback
@@ -50,6 +51,7 @@ from std_srvs.srv import Trigger
 from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
                    resolve_rosbag2_format)
 from ..bag.extract import EXPERIMENT_METADATA
+from ..identify.from_bag import identify_bag
 from ..protocols import ProtocolError, load_protocol
 from .common import (
     COMMAND_QOS,
@@ -62,7 +64,9 @@ from .common import (
     declare_bool,
     declare_float,
     declare_str,
+    stamp_to_ns,
 )
+from .runner import run_nodes
 
 __all__ = ["IdentifierNode", "main", "qos_to_bag"]
 
@@ -98,6 +102,28 @@ def qos_to_bag(profile) -> QosProfile:
 class IdentifierNode(Node):
     def __init__(self, **kwargs):
         super().__init__("identifier_node", **kwargs)
+        run_name = self._declare_parameters()
+        self._reset_state()
+        self._load_protocol()
+        self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
+        self.bag_dir = self.run_dir / "bag"
+        self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
+        self.ack_pub = self.create_publisher(Header, "~/tick_done", 10)
+        self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
+        self.segment_pub = self.create_publisher(String, "~/segment", LATCHED_QOS)
+        self.create_service(Trigger, "~/abort", self.on_abort)
+        if not self._preflight():
+            return
+        self._create_ticks()
+        self.create_timer(0.5, self.publish_status)
+        self.get_logger().info(
+            f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
+            f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
+        )
+
+    # ------------------------------------------------------------------ start-up
+    def _declare_parameters(self) -> str:
+        """Declare the parameters (read into attributes); returns the run name (may be empty)."""
         self.protocol_ref = declare_str(self, "protocol", "paper", "protocol name in config/protocols or a YAML path")
         self.output_dir = Path(declare_str(self, "output_dir", "runs", "folder of the runs"))
         run_name = declare_str(self, "run_name", "", "name of this run (default: date and time)")
@@ -111,7 +137,6 @@ class IdentifierNode(Node):
         if self.command_trigger not in ("timer", "applied_voltage"):
             raise SystemExit(f"identifier_node: parameter 'command_trigger': timer or applied_voltage, "
                              f"got {self.command_trigger!r}")
-        self.last_trigger_ns = -1
         self.wait_for_rig_s = declare_float(self, "wait_for_rig_s", 30.0,
                                             "wait this long for the amplifier and the sensor, s", 0.0, 600.0)
         self.min_free_mb = declare_float(self, "min_free_mb", 100.0, "free disk needed before starting, MB", 0.0, 1e6)
@@ -121,6 +146,11 @@ class IdentifierNode(Node):
                                       "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
                                       "or jazzy (Jazzy and newer)")
         self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
+        return run_name
+
+    def _reset_state(self) -> None:
+        """The run's state before anything happened."""
+        self.last_trigger_ns = -1
         self.state = "starting"
         self.error = ""
         self.summary: dict = {}
@@ -135,6 +165,10 @@ class IdentifierNode(Node):
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
         self.skipped_before_clock = 0
+
+    def _load_protocol(self) -> None:
+        """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
+        the parameter when refused."""
         try:
             self.protocol = load_protocol(self.protocol_ref)
             self.segments = self.protocol.schedule(self.max_voltage_V or None)
@@ -147,20 +181,16 @@ class IdentifierNode(Node):
             self.bag_format = resolve_rosbag2_format(self.bag_format)
         except BagError as exc:
             raise SystemExit(f"identifier_node: parameter 'rosbag2_format': {exc}") from None
-        self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
-        self.bag_dir = self.run_dir / "bag"
-        self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
-        self.ack_pub = self.create_publisher(Header, "~/tick_done", 10)
-        self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
-        self.segment_pub = self.create_publisher(String, "~/segment", LATCHED_QOS)
-        self.create_service(Trigger, "~/abort", self.on_abort)
-        # Pre-flight: nothing is commanded unless the bag can be written.
+
+    def _preflight(self) -> bool:
+        """Nothing is commanded unless the bag can be written: the run folder, free disk, the bag opened.
+        False (the node reports the error and stays idle) when it cannot."""
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             check_writable(self.bag_dir, int(self.min_free_mb * 1e6))
         except (BagError, OSError) as exc:
             self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
-            return
+            return False
         try:
             self.open_bag()
         except BagError as exc:
@@ -170,21 +200,20 @@ class IdentifierNode(Node):
                 except BagError:
                     pass
             self.fail(f"cannot record to {self.bag_dir}: {exc}; no voltage was applied")
-            return
+            return False
+        return True
+
+    def _create_ticks(self) -> None:
+        """What triggers a command: a timer, or the amplifier's applied voltage (``command_trigger``)."""
         if self.command_trigger == "timer":
             self.create_timer(1.0 / self.command_rate_hz, self.on_tick)
-        else:
-            # a command computed at a clock tick races the amplifier's update of the same tick (it is
-            # applied at once or one update later: a jittered staircase). After the amplifier's output
-            # for t_k is seen, the command is for its update at t_k + 1/rate, always; the mock rig's
-            # lockstep (amplifier_node/command_received) lets the clock advance only once it arrived.
-            self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_applied_voltage, SENSOR_QOS)
-            self.create_timer(0.1, self.on_wait_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.create_timer(0.5, self.publish_status)
-        self.get_logger().info(
-            f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
-            f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
-        )
+            return
+        # a command computed at a clock tick races the amplifier's update of the same tick (it is
+        # applied at once or one update later: a jittered staircase). After the amplifier's output
+        # for t_k is seen, the command is for its update at t_k + 1/rate, always; the mock rig's
+        # lockstep (amplifier_node/command_received) lets the clock advance only once it arrived.
+        self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_applied_voltage, SENSOR_QOS)
+        self.create_timer(0.1, self.on_wait_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     # ------------------------------------------------------------------ recording
     def open_bag(self) -> None:
@@ -305,7 +334,7 @@ class IdentifierNode(Node):
 
     def on_applied_voltage(self, msg: BatteryState) -> None:
         """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        stamp_ns = stamp_to_ns(msg.header.stamp)
         if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
             self.last_trigger_ns = stamp_ns
             self.on_tick(stamp_ns)
@@ -439,8 +468,6 @@ class IdentifierNode(Node):
     def run_identification(self) -> None:
         t_start = time.perf_counter()
         try:
-            from ..identify.from_bag import identify_bag
-
             result = identify_bag(self.bag_dir, self.run_dir, membrane=self.membrane_override or None,
                                   progress=lambda msg: self.get_logger().info(msg))
             self.summary.update(result)
@@ -512,10 +539,7 @@ class IdentifierNode(Node):
 
 
 def main(args=None) -> None:
-    import sys
-
-    from .runner import run_nodes
-
+    """``ros2 run dea_ros identifier_node``; exits with the node's exit code (1 after an error)."""
     holder = {}
 
     def factory():

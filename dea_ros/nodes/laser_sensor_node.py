@@ -38,12 +38,14 @@ from rclpy.node import Node
 from sensor_msgs.msg import Range
 from std_srvs.srv import Trigger
 
+from ..hardware.ild1320_emulator import MockDisplacementSensor
 from ..hardware.ild1320_protocol import (
     ALLOWED_MEASURING_RATES_HZ,
     DEFAULT_JUMP_TOLERANCE_M,
     DEFAULT_MAX_SPEED_M_PER_S,
     validate_measuring_rate_hz,
 )
+from ..hardware.ild1320_sensor import ILD1320Sensor
 from ..hardware.laser import SensorConfigurationError, SensorDisconnected, SensorError
 from .common import (
     SENSOR_QOS,
@@ -54,6 +56,7 @@ from .common import (
     make_range,
     publish_diagnostic,
 )
+from .runner import run_node
 
 __all__ = ["LaserSensorNode", "main"]
 
@@ -125,14 +128,10 @@ class LaserSensorNode(Node):
 
     def _make_sensor(self, backend: str):
         if backend == "ild1320":
-            from ..hardware.ild1320_sensor import ILD1320Sensor
-
             return ILD1320Sensor(self.port, baudrate=self.baudrate, measuring_rate_hz=self.rate_hz,
                                  measuring_range_m=self.range_m, max_speed_m_per_s=self.max_speed_m_per_s,
                                  jump_tolerance_m=self.jump_tolerance_m)
         if backend == "mock":
-            from ..hardware.ild1320_emulator import MockDisplacementSensor
-
             return MockDisplacementSensor(measuring_rate_hz=self.rate_hz, measuring_range_m=self.range_m)
         raise SystemExit(f"laser_sensor_node: parameter 'backend': ild1320 or mock, got {backend!r}")
 
@@ -283,8 +282,7 @@ class LaserSensorNode(Node):
 
 
 def main(args=None) -> None:
-    from .runner import run_node
-
+    """``ros2 run dea_ros laser_sensor_node``."""
     run_node(LaserSensorNode, args)
 
 

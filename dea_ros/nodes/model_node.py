@@ -1,8 +1,8 @@
 """model_node: predicts the displacement from the applied voltage in real time.
 
 Subscribes ``voltage`` (sensor_msgs/BatteryState, the amplifier's applied voltage),
-advances the model with the core's fixed-step RK4 stepper
-(:class:`dea_ros.solvers.integrate.RealTimeStepper`), and publishes
+advances the model with the core's predictor (:class:`dea_ros.control.prediction.ModelPredictor`:
+the fixed-step RK4 stepper with exact updates at input stamps), and publishes
 ``displacement_predicted`` (sensor_msgs/Range, m):
 
 * on every voltage message: the model is advanced to the message stamp with the
@@ -38,7 +38,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, Range
 from std_srvs.srv import Trigger
 
-from ..model import ParameterError, load_parameters
+from ..control import ModelPredictor
+from ..errors import ParameterError
+from ..model import load_parameters
 from ..solvers.integrate import RealTimeStepper
 from .common import (
     SENSOR_QOS,
@@ -48,7 +50,9 @@ from .common import (
     declare_str,
     make_range,
     publish_diagnostic,
+    stamp_to_ns,
 )
+from .runner import run_node
 
 __all__ = ["ModelNode", "main"]
 
@@ -67,19 +71,13 @@ class ModelNode(Node):
             self, "input_timeout_s", 0.05, "extrapolate (timer) only after this long without voltage input, s "
             "(at least 2/rate_hz)", 0.0, 60.0))
         self.frame_id = declare_str(self, "frame_id", "dea_model", "frame_id of the predictions")
-        self.stepper = self._make_stepper(self.params_file)
-        self.voltage_V = 0.0
-        self.model_time_ns: int | None = None   # time of the stepper's state (may be extrapolated)
-        self.anchor_ns: int | None = None       # stamp of the latest input: exact state below
-        self.anchor_state: list | None = None
-        self.stale_inputs = 0
+        self.predictor = ModelPredictor(self._load_parameters(self.params_file), self.dt_s, self.max_catch_up_s,
+                                        on_gap_reset=self._report_gap_reset)
         self.superseded_inputs = 0              # inputs older than the last published prediction
         self.last_published_ns: int | None = None
         self.last_tick_ns: int | None = None     # clock at the previous timer tick (detects jumps back)
         self.last_input_ns: int | None = None    # clock when the latest input (or the start) was seen
-        self.dt_ns = max(1, int(round(self.dt_s * 1e9)))
         self.late_ticks = 0
-        self.resets_for_gaps = 0
         self.published = 0
         self.max_compute_s = 0.0
         self.pub = self.create_publisher(Range, TOPIC_DISPLACEMENT_PREDICTED, SENSOR_QOS)
@@ -95,53 +93,32 @@ class ModelNode(Node):
         )
 
     # ------------------------------------------------------------ model
-    def _make_stepper(self, source: str) -> RealTimeStepper:
+    @property
+    def stepper(self) -> RealTimeStepper:
+        """The core's RK4 stepper (inside the predictor)."""
+        return self.predictor.stepper
+
+    @property
+    def voltage_V(self) -> float:
+        """The held voltage, V."""
+        return self.predictor.voltage_V
+
+    @staticmethod
+    def _load_parameters(source: str):
         try:
-            params = load_parameters(source)
+            return load_parameters(source)
         except (ParameterError, FileNotFoundError) as exc:
             raise SystemExit(f"model_node: parameter 'params_file': {exc}") from None
-        return RealTimeStepper(params, dt_s=self.dt_s)
+
+    def _report_gap_reset(self, gap_ns: int, voltage_V: float) -> None:
+        self.get_logger().warning(
+            f"gap of {gap_ns * 1e-9:.3f} s in the voltage input: model reset to equilibrium at "
+            f"{voltage_V:.1f} V",
+            throttle_duration_sec=5.0,
+        )
 
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
-
-    def integrate(self, from_ns: int, to_ns: int) -> None:
-        """Advance the stepper from from_ns to to_ns with the held voltage (fixed steps, last shortened)."""
-        n, rest_ns = divmod(to_ns - from_ns, self.dt_ns)
-        for _ in range(n):
-            self.stepper.step(self.voltage_V, self.dt_s)
-        if rest_ns > 0:
-            self.stepper.step(self.voltage_V, rest_ns * 1e-9)
-
-    def advance_to(self, t_ns: int) -> bool:
-        """Exact update at an input stamp: re-integrate from the anchor (the state at the previous input).
-
-        Predictions the timer published in between were extrapolations; they are
-        discarded here, so a late message never integrates an interval twice.
-        Returns False for a stale (out-of-order) stamp, which is ignored.
-        """
-        if self.anchor_ns is None:
-            self.anchor_ns = self.model_time_ns = t_ns
-            self.anchor_state = list(self.stepper.state)
-            return True
-        if t_ns < self.anchor_ns:
-            self.stale_inputs += 1
-            return False
-        gap_ns = t_ns - self.anchor_ns
-        self.stepper.state = list(self.anchor_state)
-        if gap_ns > self.max_catch_up_s * 1e9:
-            self.resets_for_gaps += 1
-            self.get_logger().warning(
-                f"gap of {gap_ns * 1e-9:.3f} s in the voltage input: model reset to equilibrium at "
-                f"{self.voltage_V:.1f} V",
-                throttle_duration_sec=5.0,
-            )
-            self.stepper.reset(self.voltage_V)
-        else:
-            self.integrate(self.anchor_ns, t_ns)
-        self.anchor_ns = self.model_time_ns = t_ns
-        self.anchor_state = list(self.stepper.state)
-        return True
 
     def publish_prediction(self, t_ns: int) -> bool:
         """Publish the current state stamped t_ns, unless a prediction at or after t_ns is out already."""
@@ -158,11 +135,10 @@ class ModelNode(Node):
         u = float(msg.voltage) if msg.present else 0.0
         if not math.isfinite(u):
             return
-        t_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        if not self.advance_to(t_ns):
+        t_ns = stamp_to_ns(msg.header.stamp)
+        if not self.predictor.input(t_ns, u):
             return
         self.last_input_ns = self.now_ns()
-        self.voltage_V = u
         if not self.publish_prediction(t_ns):
             self.superseded_inputs += 1
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
@@ -170,33 +146,28 @@ class ModelNode(Node):
     def on_timer(self) -> None:
         now = self.now_ns()
         previous, self.last_tick_ns = self.last_tick_ns, now
+        predictor = self.predictor
         if previous is not None and now < previous - self.max_catch_up_s * 1e9:
             self.get_logger().warning(
                 f"clock jumped back by {(previous - now) * 1e-9:.3f} s: model restarted at {self.voltage_V:.1f} V")
-            self.stepper.reset(self.voltage_V)
-            self.model_time_ns = self.anchor_ns = self.anchor_state = self.last_published_ns = None
-            self.last_input_ns = None
-        if self.model_time_ns is None:
-            self.model_time_ns = self.last_input_ns = now
+            predictor.restart()
+            self.last_published_ns = self.last_input_ns = None
+        if predictor.model_time_ns is None:
+            predictor.start_clock(now)
+            self.last_input_ns = now
             return
         if self.last_input_ns is None:
             self.last_input_ns = now
-        behind_s = (now - self.model_time_ns) * 1e-9
         quiet_s = (now - self.last_input_ns) * 1e-9
-        if quiet_s > self.input_timeout_s and behind_s > 0.5 / self.rate_hz:
+        if quiet_s > self.input_timeout_s and predictor.behind_s(now) > 0.5 / self.rate_hz:
             # no input for a while: extrapolate with the held voltage
             if previous is not None and (now - previous) * 1e-9 > 2.0 / self.rate_hz:
                 self.late_ticks += 1  # this tick came more than two periods after the previous one
-            if behind_s > self.max_catch_up_s:
-                self.stepper.reset(self.voltage_V)
-            else:
-                self.integrate(self.model_time_ns, now)
-            self.model_time_ns = now
+            predictor.extrapolate(now)
             self.publish_prediction(now)
 
     def on_reset(self, _req, resp):
-        self.stepper.reset(self.voltage_V)
-        self.anchor_state = list(self.stepper.state)
+        self.predictor.reset()
         resp.success = True
         resp.message = f"model reset to the static equilibrium at {self.voltage_V:.1f} V"
         return resp
@@ -204,8 +175,7 @@ class ModelNode(Node):
     def on_reload(self, _req, resp):
         source = self.get_parameter("params_file").value
         try:
-            self.stepper = RealTimeStepper(load_parameters(source), dt_s=self.dt_s, initial_voltage_V=self.voltage_V)
-            self.anchor_state = list(self.stepper.state)
+            self.predictor.replace_model(load_parameters(source))
         except (ParameterError, FileNotFoundError, ValueError) as exc:
             resp.success = False
             resp.message = f"params_file '{source}': {exc}"
@@ -215,12 +185,13 @@ class ModelNode(Node):
         return resp
 
     def publish_diagnostics(self) -> None:
+        predictor = self.predictor
         publish_diagnostic(
-            self, self.diag_pub, f"{self.get_name()}: model", self.stepper.params.name,
-            DiagnosticStatus.WARN if self.late_ticks or self.resets_for_gaps else DiagnosticStatus.OK,
+            self, self.diag_pub, f"{self.get_name()}: model", predictor.params.name,
+            DiagnosticStatus.WARN if self.late_ticks or predictor.resets_for_gaps else DiagnosticStatus.OK,
             "falling behind" if self.late_ticks else "ok",
             [("published", self.published), ("late_ticks", self.late_ticks),
-             ("resets_for_gaps", self.resets_for_gaps), ("stale_inputs", self.stale_inputs),
+             ("resets_for_gaps", predictor.resets_for_gaps), ("stale_inputs", predictor.stale_inputs),
              ("superseded_inputs", self.superseded_inputs),
              ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"), ("voltage_V", f"{self.voltage_V:.1f}"),
              ("displacement_m", f"{self.stepper.displacement_m:.9f}")],
@@ -228,8 +199,7 @@ class ModelNode(Node):
 
 
 def main(args=None) -> None:
-    from .runner import run_node
-
+    """``ros2 run dea_ros model_node``."""
     run_node(ModelNode, args)
 
 

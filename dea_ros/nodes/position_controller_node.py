@@ -37,7 +37,7 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 """
 from __future__ import annotations
 
-import math
+import sys
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -49,12 +49,14 @@ from trajectory_msgs.msg import JointTrajectory
 
 from ..control import (
     ControllerConfig,
-    PiecewiseQuintic,
     PositionController,
+    SampleStream,
+    TrackingWindow,
     UnreachableReferenceError,
+    trajectory_from_points,
 )
-from ..hardware.amplifier_safety import SafetyConfigError, membrane_voltage_limit_V
-from ..model import ParameterError, load_parameters
+from ..errors import ParameterError, SafetyConfigError
+from ..model import load_parameters
 from .common import (
     COMMAND_QOS,
     SENSOR_QOS,
@@ -68,6 +70,7 @@ from .common import (
     s_to_stamp,
     stamp_to_s,
 )
+from .runner import run_nodes
 
 __all__ = ["PositionControllerNode", "main", "TOPIC_SETPOINT", "TOPIC_TRAJECTORY", "TOPIC_JOINT_STATES"]
 
@@ -110,6 +113,7 @@ class PositionControllerNode(LifecycleNode):
                      "also publish ~/command_stamped (BatteryState: the command stamped with its sample's time)")
         self.ctl: PositionController | None = None
         self.active = False
+        self.sample_period_s = float(self.p("sample_period_s"))   # (again at configure)
         self._reset_runtime()
         self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = self.ack_pub = None
         self.own_subs = []
@@ -124,37 +128,23 @@ class PositionControllerNode(LifecycleNode):
 
     def _reset_runtime(self) -> None:
         self.state = "inactive"
-        self.last_sample_t: float | None = None     # stamp of the latest sample, s
-        self.last_receipt_s: float | None = None    # node clock at its receipt, s
-        self.last_measured_m = math.nan
-        self.velocity_m_per_s = 0.0
+        self.stream = SampleStream(self.sample_period_s)   # the laser samples (control/monitor)
+        self.window = TrackingWindow()              # tracking error between diagnostics
+        self.last_receipt_s: float | None = None    # node clock at the receipt of the latest sample, s
         self.last_output = None
         self.pending_setpoint: float | None = None
         self.resume_target: float | None = None
-        self.samples = 0
         self.commands = 0
-        self.stale_samples = 0
-        self.skipped_samples = 0                    # never seen (gaps in the stamps: dropped or overtaken)
-        self.invalid_samples = 0
         self.sensor_losses = 0
         self.refused = 0
         self.last_refusal = ""
         self.last_accept = ""
-        self.saturations = 0
-        self.window_sq = 0.0
-        self.window_n = 0
-        self.window_max = 0.0
         self.max_compute_s = 0.0
 
     def make_config(self, params) -> ControllerConfig:
-        limit = membrane_voltage_limit_V(params.thickness_m, params.breakdown_field_V_per_m, float(self.p("margin")))
-        configured = float(self.p("max_voltage_V"))
-        if configured > limit:
-            raise SafetyConfigError(
-                f"parameter 'max_voltage_V': {configured} V exceeds the membrane limit {limit:.6g} V (margin x "
-                "breakdown field x thickness); lower it or set 0 to use the limit")
-        return ControllerConfig(
-            max_voltage_V=configured if configured > 0 else limit,
+        """The controller's settings from the parameters (the voltage ceiling from the membrane)."""
+        return ControllerConfig.for_membrane(
+            params, margin=float(self.p("margin")), max_voltage_V=float(self.p("max_voltage_V")),
             slew_rate_V_per_s=float(self.p("slew_rate_V_per_s")),
             sample_period_s=float(self.p("sample_period_s")),
             loop_delay_s=float(self.p("loop_delay_s")),
@@ -286,9 +276,9 @@ class PositionControllerNode(LifecycleNode):
 
         The latest sample's stamp plus one period (the next sample); the ROS clock before any sample.
         """
-        if self.last_sample_t is None:
+        if self.stream.last_t_s is None:
             return self.now_s()
-        return self.last_sample_t + self.sample_period_s
+        return self.stream.last_t_s + self.sample_period_s
 
     def on_trajectory(self, msg: JointTrajectory) -> None:
         if not self.active or self.ctl is None:
@@ -310,23 +300,9 @@ class PositionControllerNode(LifecycleNode):
             return
         stamp = stamp_to_s(msg.header.stamp)     # ROS time; the laser stamps are on the same clock
         start = now if stamp == 0.0 or stamp < now else stamp
-        times, pos, vel, acc = [now], [d0], [v0], [a0]
         try:
-            for k, pt in enumerate(msg.points):
-                t = start + pt.time_from_start.sec + pt.time_from_start.nanosec * 1e-9
-                if len(pt.positions) != len(names):
-                    raise ValueError(f"point {k}: {len(pt.positions)} positions for {len(names)} joints")
-                if t <= now + 1e-4:
-                    continue            # in the past (or now): the current reference stands for it
-                times.append(t)
-                pos.append(float(pt.positions[j]))
-                vel.append(float(pt.velocities[j]) if len(pt.velocities) == len(names) else None)
-                acc.append(float(pt.accelerations[j]) if len(pt.accelerations) == len(names) else None)
-            if len(times) < 2:
-                raise ValueError("every point is in the past (header.stamp + time_from_start <= now)")
-            if vel[-1] is None:
-                vel[-1] = 0.0
-            traj = PiecewiseQuintic(times, pos, vel, acc)
+            points = [_joint_point(k, pt, j, len(names), start) for k, pt in enumerate(msg.points)]
+            traj = trajectory_from_points(now, (d0, v0, a0), points)
             self._accept(self.ctl.set_trajectory(now, traj))
         except (ValueError, UnreachableReferenceError) as exc:
             self._refuse("trajectory", exc)
@@ -338,23 +314,9 @@ class PositionControllerNode(LifecycleNode):
         t0 = time.perf_counter()
         d = float(msg.range)
         t = stamp_to_s(msg.header.stamp)
-        if not math.isfinite(d):
-            self.invalid_samples += 1
+        if not self.stream.accept(t, d):
             return
-        if self.last_sample_t is not None and t <= self.last_sample_t:
-            self.stale_samples += 1
-            return
-        period = float(self.sample_period_s)
-        if self.last_sample_t is not None and t - self.last_sample_t > 1.5 * period:
-            self.skipped_samples += int(round((t - self.last_sample_t) / period)) - 1
-        if self.last_sample_t is not None and t - self.last_sample_t < 0.1 and math.isfinite(self.last_measured_m):
-            dt = t - self.last_sample_t
-            a = dt / (dt + 0.005)        # velocity for joint_states: first-order filter, 5 ms
-            self.velocity_m_per_s += a * ((d - self.last_measured_m) / dt - self.velocity_m_per_s)
-        self.last_sample_t = t
         self.last_receipt_s = self.now_s()
-        self.last_measured_m = d
-        self.samples += 1
         if not self.ctl.started:
             self._start(t, d)
         out = self.ctl.update(t, d)
@@ -370,11 +332,7 @@ class PositionControllerNode(LifecycleNode):
             self.ack_pub.publish(self.ack_msg)
         self.commands += 1
         self.last_output = out
-        if out.saturated:
-            self.saturations += 1
-        self.window_sq += out.error_m * out.error_m
-        self.window_n += 1
-        self.window_max = max(self.window_max, abs(out.error_m))
+        self.window.add(out)
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
 
     def _start(self, t: float, d: float) -> None:
@@ -395,7 +353,7 @@ class PositionControllerNode(LifecycleNode):
             return
         silent = self.now_s() - self.last_receipt_s
         if silent > float(self.p("sensor_timeout_s")):
-            self.resume_target = self.ctl.reference_at(self.last_sample_t)[0]
+            self.resume_target = self.ctl.reference_at(self.stream.last_t_s)[0]
             self.ctl.stop()
             self.sensor_losses += 1
             self.state = "laser lost: not commanding"
@@ -406,13 +364,14 @@ class PositionControllerNode(LifecycleNode):
 
     # ---------------------------------------------------------------- outputs
     def publish_joint_state(self) -> None:
-        if not self.active or self.joint_pub is None or self.last_sample_t is None or self.state != "tracking":
+        stream = self.stream
+        if not self.active or self.joint_pub is None or stream.last_t_s is None or self.state != "tracking":
             return
         msg = JointState()
-        s_to_stamp(self.last_sample_t, msg.header.stamp)
+        s_to_stamp(stream.last_t_s, msg.header.stamp)
         msg.name = [self.p("joint_name")]
-        msg.position = [float(self.last_measured_m)]
-        msg.velocity = [float(self.velocity_m_per_s)]
+        msg.position = [float(stream.last_m)]
+        msg.velocity = [float(stream.velocity_m_per_s)]
         self.joint_pub.publish(msg)
 
     def publish_diagnostics(self) -> None:
@@ -420,7 +379,7 @@ class PositionControllerNode(LifecycleNode):
             return
         lo, hi = self.ctl.reachable_range_m
         out = self.last_output
-        rms = math.sqrt(self.window_sq / self.window_n) if self.window_n else math.nan
+        stream, window = self.stream, self.window
         if self.state.startswith("laser lost"):
             level = DiagnosticStatus.ERROR
         elif self.state != "tracking" or self.refused:
@@ -430,14 +389,14 @@ class PositionControllerNode(LifecycleNode):
         message = self.state + (f"; last refusal: {self.last_refusal}" if self.last_refusal else "")
         values = [
             ("state", self.state), ("reference_m", f"{out.reference_m:.9f}" if out else "nan"),
-            ("measured_m", f"{self.last_measured_m:.9f}"), ("error_m", f"{out.error_m:.3e}" if out else "nan"),
-            ("rms_error_m", f"{rms:.3e}"), ("max_abs_error_m", f"{self.window_max:.3e}"),
+            ("measured_m", f"{stream.last_m:.9f}"), ("error_m", f"{out.error_m:.3e}" if out else "nan"),
+            ("rms_error_m", f"{window.rms_m:.3e}"), ("max_abs_error_m", f"{window.max_abs_m:.3e}"),
             ("voltage_V", f"{out.voltage_V:.1f}" if out else "nan"),
             ("u2_feedforward_V2", f"{out.u2_feedforward_V2:.4g}" if out else "nan"),
             ("u2_feedback_V2", f"{out.u2_feedback_V2:.4g}" if out else "nan"),
-            ("samples", self.samples), ("commands", self.commands), ("saturated_commands", self.saturations),
-            ("stale_samples", self.stale_samples), ("skipped_samples", self.skipped_samples),
-            ("invalid_samples", self.invalid_samples),
+            ("samples", stream.samples), ("commands", self.commands), ("saturated_commands", window.saturations),
+            ("stale_samples", stream.stale), ("skipped_samples", stream.skipped),
+            ("invalid_samples", stream.invalid),
             ("sensor_losses", self.sensor_losses), ("refused", self.refused), ("last_refusal", self.last_refusal),
             ("last_accepted", self.last_accept), ("reachable_min_m", f"{lo:.9f}"), ("reachable_max_m", f"{hi:.9f}"),
             ("max_voltage_V", f"{self.ctl.max_voltage_V:.1f}"), ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"),
@@ -445,15 +404,21 @@ class PositionControllerNode(LifecycleNode):
         ]
         publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: position control", self.ctl.params.name,
                            level, message, values)
-        self.window_sq, self.window_n, self.window_max = 0.0, 0, 0.0
+        window.clear()
+
+
+def _joint_point(k: int, point, joint: int, n_joints: int, start_s: float) -> tuple:
+    """A JointTrajectoryPoint of joint ``joint`` as (time s, position m, velocity or None, acceleration or None)."""
+    t = start_s + point.time_from_start.sec + point.time_from_start.nanosec * 1e-9
+    if len(point.positions) != n_joints:
+        raise ValueError(f"point {k}: {len(point.positions)} positions for {n_joints} joints")
+    return (t, float(point.positions[joint]),
+            float(point.velocities[joint]) if len(point.velocities) == n_joints else None,
+            float(point.accelerations[joint]) if len(point.accelerations) == n_joints else None)
 
 
 def main(args=None) -> None:
     """``ros2 run dea_ros position_controller_node``; ``-p autostart:=true`` configures and activates."""
-    import sys
-
-    from .runner import run_nodes
-
     def factory():
         node = PositionControllerNode()
         if node.declare_parameter("autostart", False).value:

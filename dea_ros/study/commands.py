@@ -9,13 +9,15 @@ from __future__ import annotations
 import json
 import sys
 
+from .engine import ENGINE_KINDS, Engine, EngineError
+from .runner import StudyInterrupted, run_study
+from .spec import SpecError, load_spec
+
 __all__ = ["register", "cmd_study", "add_engine_args", "engine_from_args"]
 
 
 def add_engine_args(parser) -> None:
     """``--engine``, ``--workers``, ``--scheduler`` (shared by ``study`` and ``identify``)."""
-    from .engine import ENGINE_KINDS
-
     parser.add_argument("--engine", choices=ENGINE_KINDS, default="auto",
                         help="where the batches run: auto (default: a local Dask cluster with one worker process "
                              "per core when dask is installed, else local processes), serial, processes, dask")
@@ -27,16 +29,11 @@ def add_engine_args(parser) -> None:
 
 def engine_from_args(args):
     """An :class:`~dea_ros.study.engine.Engine` from the options (EngineError with the fix when impossible)."""
-    from .engine import Engine
-
     return Engine(args.engine, workers=args.workers, scheduler=args.scheduler)
 
 
 def cmd_study(args) -> int:
-    from .engine import EngineError
-    from .runner import StudyInterrupted, run_study
-    from .spec import SpecError, load_spec
-
+    """``dea-ros study``: run or resume the study; the exit code (module docstring)."""
     try:
         spec = load_spec(args.spec)
         if args.workers is not None and args.workers < 1:

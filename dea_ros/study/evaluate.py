@@ -27,8 +27,10 @@ import math
 
 import numpy as np
 
-from ..model.equilibrium import NoEquilibriumError, static_equilibrium
-from ..model.parameters import MembraneParameters, ParameterError
+from ..errors import ContinuationError, HarmonicBalanceError, NoEquilibriumError, ParameterError
+from ..model.equilibrium import static_equilibrium
+from ..model.parameters import MembraneParameters
+from ..solvers import SinePeriodic, frequency_sweep
 from .spec import EXCITATION_FIELDS, StudySpec, parse_spec
 
 __all__ = ["design_parameters", "evaluate_design", "evaluate_chunk", "COLUMNS", "FAILURE_REASONS",
@@ -113,10 +115,6 @@ def _bands_summary(row: dict, sweep) -> None:
 
 def evaluate_design(base: MembraneParameters, spec: StudySpec, index: int, values) -> dict:
     """The result row of one design (module docstring); never raises for a bad design."""
-    from ..solvers.continuation import ContinuationError, frequency_sweep
-    from ..solvers.harmonic_balance import HarmonicBalanceError
-    from ..solvers.inputs import SinePeriodic
-
     row = _empty_row(index, spec, values)
     try:
         params, exc = design_parameters(base, spec, values)

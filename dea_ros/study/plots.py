@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_maps", "SCATTER_MAX"]
+__all__ = ["plot_maps", "binned_panel", "SCATTER_MAX"]
 
 #: Largest study drawn design by design; larger ones are drawn as binned maps.
 SCATTER_MAX = 400
@@ -58,7 +58,7 @@ def _box3(a: np.ndarray) -> np.ndarray:
     return sum(p[1 + di:p.shape[0] - 1 + di, 1 + dj:p.shape[1] - 1 + dj] for di in (-1, 0, 1) for dj in (-1, 0, 1))
 
 
-def _binned_panel(fig, ax, x, y, val, flags, label: str) -> list:
+def binned_panel(fig, ax, x, y, val, flags, label: str) -> list:
     """Median of val per bin (designs with finite values) and the regions where >= 50 % of the
     designs have each flag; returns the legend handles of those regions."""
     from matplotlib.patches import Patch
@@ -124,7 +124,7 @@ def plot_maps(spec, rows: list, out_dir) -> list:
                          for col, colour, _m, style, hatch, text in marks]
                 flags.append((folds[ok], "k", "--", "..", "folds (hysteresis)"))
                 if np.any(ok):
-                    regions = _binned_panel(fig, ax, x[ok], y[ok], val[ok], flags, label)
+                    regions = binned_panel(fig, ax, x[ok], y[ok], val[ok], flags, label)
             else:
                 if np.any(sel):
                     sc = ax.scatter(x[sel], y[sel], c=val[sel], s=36, cmap="viridis")

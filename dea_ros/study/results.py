@@ -27,7 +27,6 @@ def parquet_problem() -> str | None:
     a pyarrow built for NumPy 2 imports under NumPy 1.x (Jazzy's apt numpy 1.26) and fails only at its
     first array ("pyarrow requires NumPy 2.0 or newer")."""
     try:
-        import numpy as np
         import pyarrow as pa
         import pyarrow.parquet  # noqa: F401
 

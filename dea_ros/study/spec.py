@@ -16,10 +16,14 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-from ..errors import SpecError
+import yaml
+from scipy.stats import qmc
 
-__all__ = ["SpecError", "StudySpec", "Variable", "load_spec", "MEMBRANE_FIELDS", "EXCITATION_FIELDS",
-           "SAMPLING_METHODS"]
+from ..errors import SpecError
+from ..solvers.inputs import check_harmonics
+
+__all__ = ["SpecError", "StudySpec", "Variable", "load_spec", "parse_spec", "spec_from_dict", "MEMBRANE_FIELDS",
+           "EXCITATION_FIELDS", "SAMPLING_METHODS"]
 
 #: Membrane fields a study can vary (SI units as in the field names).
 MEMBRANE_FIELDS = ("prestretch", "thickness_m", "plate_radius_m", "electrode_width_m", "mass_kg",
@@ -99,8 +103,6 @@ class StudySpec:
             axes = [v.grid_values() for v in self.variables]
             mesh = np.meshgrid(*axes, indexing="ij")
             return np.stack([m.reshape(-1) for m in mesh], axis=1)
-        from scipy.stats import qmc
-
         d = len(self.variables)
         if self.method == "lhs":
             sampler = qmc.LatinHypercube(d=d, seed=self.seed)
@@ -197,14 +199,8 @@ def _variable(name: str, entry, method: str) -> Variable:
     return Variable(name, lo, hi, points=points, scale=scale)
 
 
-def parse_spec(data, source: str = "spec") -> StudySpec:
-    """Validate a spec mapping (as read from YAML); raise :class:`SpecError` naming the field."""
-    data = _mapping(source, data)
-    _unknown(source, data, _TOP_KEYS)
-    name = str(data.get("name") or Path(source).stem or "study")
-    base = data.get("base", "A2")
-    if not isinstance(base, str) or not base.strip():
-        raise SpecError("base: a preset name (LP1, A1, A2) or a parameters YAML path is needed")
+def _parse_sampling(data: Mapping) -> tuple[str, int, int]:
+    """``sampling``: (method, number of designs for lhs/sobol (0 for a grid), seed)."""
     sampling = _mapping("sampling", data.get("sampling"))
     _unknown("sampling", sampling, ("method", "n", "seed"))
     method = sampling.get("method", "grid")
@@ -221,8 +217,11 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
                             f"use {1 << (n - 1).bit_length()} or method lhs")
     elif "n" in sampling:
         raise SpecError("sampling.n: only for lhs/sobol; a grid has points per parameter")
-    params = _mapping("parameters", data.get("parameters"))
-    variables = [_variable(str(k), v, method) for k, v in params.items()]
+    return method, n, seed
+
+
+def _parse_excitation(data: Mapping, variables: list) -> dict:
+    """``excitation``: the fixed excitation fields (defaults filled in), none also varied."""
     exc = _mapping("excitation", data.get("excitation"))
     _unknown("excitation", exc, EXCITATION_FIELDS)
     excitation = dict(_EXCITATION_DEFAULTS)
@@ -233,17 +232,25 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
             raise SpecError(f"excitation.{v.name}: also given under parameters; give it in one place")
         if v.name in ("f_min_Hz", "f_max_Hz") and v.low <= 0:
             raise SpecError(f"parameters.{v.name}: frequencies must be > 0")
+    return excitation
+
+
+def _parse_static(data: Mapping) -> tuple[int, float | None]:
+    """``static``: (number of voltages of the static stroke, their maximum in V or None)."""
     static = _mapping("static", data.get("static"))
     _unknown("static", static, ("voltages", "max_V"))
     n_static = _integer("static.voltages", static.get("voltages", 11), 2, 10000)
     static_max = _number("static.max_V", static["max_V"], positive=True) if "max_V" in static else None
+    return n_static, static_max
+
+
+def _parse_sweep(data: Mapping) -> dict:
+    """``sweep``: the frequency sweep's settings (defaults filled in)."""
     sweep = _mapping("sweep", data.get("sweep"))
     _unknown("sweep", sweep, tuple(_SWEEP_DEFAULTS))
     sw = dict(_SWEEP_DEFAULTS)
     sw.update(sweep)
     sw["points"] = _integer("sweep.points", sw["points"], 2, 5000)
-    from ..solvers.inputs import check_harmonics
-
     try:
         sw["harmonics"] = check_harmonics(sw["harmonics"], "sweep.harmonics")
     except ValueError as exc_:
@@ -253,14 +260,23 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
     for key in ("stability", "branch_switching", "realised"):
         if not isinstance(sw[key], bool):
             raise SpecError(f"sweep.{key}: true or false, got {sw[key]!r}")
+    return sw
+
+
+def _parse_output(data: Mapping) -> tuple[int, str]:
+    """``output``: (designs per chunk, results format)."""
     output = _mapping("output", data.get("output"))
     _unknown("output", output, ("chunk_size", "format"))
     chunk = _integer("output.chunk_size", output.get("chunk_size", 25), 1, 100000)
     fmt = output.get("format", "auto")
     if fmt not in ("auto", "parquet", "csv"):
         raise SpecError(f"output.format: auto, parquet or csv, got {fmt!r}")
+    return chunk, fmt
+
+
+def _parse_plots(data: Mapping, names: list) -> list:
+    """``plots``: [x, y] pairs of varied parameters (default: the first two)."""
     plots = data.get("plots")
-    names = [v.name for v in variables]
     if plots is None:
         plots = [names[:2]] if len(names) >= 2 else []
     if not isinstance(plots, list):
@@ -272,15 +288,40 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
         if not isinstance(pair, (list, tuple)) or len(pair) != 2 or any(p not in names for p in pair):
             raise SpecError(f"plots[{k}]: a pair [x, y] of varied parameters {names} is needed, got {pair!r}")
         pairs.append([str(pair[0]), str(pair[1])])
+    return pairs
+
+
+def _parse_design_rules(data: Mapping) -> tuple[str, float]:
+    """(``prestretch_rule``, ``breakdown_margin``)."""
     rule = data.get("prestretch_rule", "ogden")
     if rule not in ("ogden", "fixed"):
         raise SpecError(f"prestretch_rule: 'ogden' (beta, gamma follow eqs. 8-9) or 'fixed', got {rule!r}")
     margin = _number("breakdown_margin", data.get("breakdown_margin", 0.9), positive=True)
     if margin >= 1.0:
         raise SpecError(f"breakdown_margin: must be in (0, 1), got {margin:g}")
+    return rule, margin
+
+
+def parse_spec(data, source: str = "spec") -> StudySpec:
+    """Validate a spec mapping (as read from YAML); raise :class:`SpecError` naming the field."""
+    data = _mapping(source, data)
+    _unknown(source, data, _TOP_KEYS)
+    name = str(data.get("name") or Path(source).stem or "study")
+    base = data.get("base", "A2")
+    if not isinstance(base, str) or not base.strip():
+        raise SpecError("base: a preset name (LP1, A1, A2) or a parameters YAML path is needed")
+    method, n, seed = _parse_sampling(data)
+    params = _mapping("parameters", data.get("parameters"))
+    variables = [_variable(str(k), v, method) for k, v in params.items()]
+    excitation = _parse_excitation(data, variables)
+    n_static, static_max = _parse_static(data)
+    sweep = _parse_sweep(data)
+    chunk, fmt = _parse_output(data)
+    plots = _parse_plots(data, [v.name for v in variables])
+    rule, margin = _parse_design_rules(data)
     spec = StudySpec(name=name, base=base.strip(), variables=variables, method=method, n=n, seed=seed,
-                     excitation=excitation, static_voltages=n_static, static_max_V=static_max, sweep=sw,
-                     chunk_size=chunk, output_format=fmt, plots=pairs, prestretch_rule=rule,
+                     excitation=excitation, static_voltages=n_static, static_max_V=static_max, sweep=sweep,
+                     chunk_size=chunk, output_format=fmt, plots=plots, prestretch_rule=rule,
                      breakdown_margin=margin, source=source, raw=json.loads(json.dumps(data, default=str)))
     if spec.n_designs > MAX_DESIGNS:
         raise SpecError(f"parameters: the grid has {spec.n_designs} designs, more than {MAX_DESIGNS}; "
@@ -292,8 +333,6 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
 
 def load_spec(path) -> StudySpec:
     """Read and validate a spec YAML file."""
-    import yaml
-
     p = Path(path)
     if not p.is_file():
         raise SpecError(f"{path}: no such spec file")
@@ -309,6 +348,3 @@ def load_spec(path) -> StudySpec:
 def spec_from_dict(data: dict[str, Any], source: str = "spec") -> StudySpec:
     """Alias of :func:`parse_spec` for library use (a spec built in Python)."""
     return parse_spec(data, source)
-
-
-__all__ += ["parse_spec", "spec_from_dict"]

@@ -102,7 +102,7 @@ def test_replay_offers_what_rosbag2_play_offers():
     """Recorded discovered profiles say history unknown / depth 0: playback uses keep_last 10 and the
     recorded reliability/durability when all publishers agreed (Rosbag2QoS::adapt_offer_to_recorded_offers)."""
     from dea_ros.bag import QosProfile
-    from dea_ros.replay import playback_qos
+    from dea_ros.nodes.replay_node import playback_qos
 
     best_effort = QosProfile("unknown", 0, "best_effort", "volatile")
     latched = QosProfile("unknown", 0, "reliable", "transient_local")

@@ -148,7 +148,7 @@ def test_a_large_study_is_drawn_as_a_binned_map_with_the_band_regions(tmp_path):
     hatched regions where >= 50 % of the designs have a band. Synthetic rows with known regions."""
     from matplotlib.image import imread
 
-    from dea_ros.study.plots import SCATTER_MAX, _binned_panel, plot_maps
+    from dea_ros.study.plots import SCATTER_MAX, binned_panel, plot_maps
 
     rng = np.random.default_rng(3)
     n = SCATTER_MAX * 5
@@ -167,7 +167,7 @@ def test_a_large_study_is_drawn_as_a_binned_map_with_the_band_regions(tmp_path):
     ok = np.array([r["status"] == "ok" for r in rows])
     flags = [(x[ok] < 0.5, "r", "-", "//", "torus"), (np.zeros(ok.sum(), bool), "o", "-", "..", "pd"),
              (y[ok] > 0.7, "k", "--", "..", "folds")]
-    handles = _binned_panel(ax.figure, ax, x[ok], y[ok], (8.0 + 4.0 * x)[ok], flags, "f")
+    handles = binned_panel(ax.figure, ax, x[ok], y[ok], (8.0 + 4.0 * x)[ok], flags, "f")
     assert [h.get_label() for h in handles] == ["torus in >= 50 % of designs", "folds in >= 50 % of designs"]
     mesh = ax.collections[0].get_array().reshape(-1)
     assert np.nanmin(mesh) > 8.0 and np.nanmax(mesh) < 12.0     # medians of 8 + 4 x
