@@ -49,8 +49,9 @@ from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..solvers.harmonic_balance import HarmonicBalanceError
 from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
-from .dynamic_fit import PARAMETER_BOUNDS, FrequencyPoint, periodic_rms_gradient, point_solution
+from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m
+from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
 from ..errors import JointFitError
