@@ -15,7 +15,8 @@ One concept per module; imports point down the list (a module uses only those ab
     metrics             error indices (Tables III-IV), parameter statistics
     static_fit          eqs. 19-20: the identifiable stress combinations and eps_r
     frequency_points    a frequency point of eq. 24, its periodic solution and d_rms gradient
-    dynamic_fit         eqs. 22-24: k1, eta1, eta2 (the paper's stage 1)
+    dynamic_objective   eq. 22's residuals and exact Jacobian (steps: collocation; sines: harmonic balance)
+    dynamic_fit         eqs. 22-24: k1, eta1, eta2 (the paper's stage 1): initial guess, optimisers
     joint_fit           every identifiable parameter at once, statistical weights
     classification      what every sine record shows and what it is fitted with
     refinement          the joint refinement stage and what is written for sigma_h''(1)
@@ -35,13 +36,8 @@ from ..errors import (
     IdentificationError,
     StaticFitError,
 )
-from .dynamic_fit import (
-    PAPER_FREQUENCIES_HZ,
-    PAPER_WEIGHTS,
-    DynamicFitResult,
-    DynamicObjective,
-    fit_dynamic,
-)
+from .dynamic_fit import PAPER_FREQUENCIES_HZ, DynamicFitResult, fit_dynamic
+from .dynamic_objective import PAPER_WEIGHTS, DynamicObjective
 from .evaluation import Evaluation, evaluate
 from .experiments import (
     ExperimentSet,

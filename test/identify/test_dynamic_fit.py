@@ -4,13 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dea_ros.identify.dynamic_fit import (
-    DynamicFitError,
-    DynamicObjective,
-    fit_dynamic,
-    resolve_weights,
-    select_fit_frequencies,
-)
+from dea_ros.identify.dynamic_fit import DynamicFitError, fit_dynamic, select_fit_frequencies
+from dea_ros.identify.dynamic_objective import DynamicObjective, resolve_weights
 from dea_ros.identify.experiments import SineData
 from dea_ros.identify.frequency_points import FrequencyPoint
 from dea_ros.identify.static_fit import OgdenRepresentation
