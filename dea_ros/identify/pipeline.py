@@ -170,8 +170,8 @@ def _refit_with_curvature(run: _Run) -> None:
 def _paper_stage(run: _Run) -> None:
     """Stage 1, the paper's dynamic fit (eqs. 22-24), on the records periodic at T/2 (as far as known)."""
     exp, opt = run.experiments, run.options
-    t0 = time.perf_counter()
     data_kinds = record_kinds(exp, exp.sensor_noise_m)   # what the sampled records show, before any fit
+    t0 = time.perf_counter()
     stage1_curvature = opt.fit_curvature is True
     static = run.static
     run.direction = static.curvature_direction() if (stage1_curvature and static is not None) else None
