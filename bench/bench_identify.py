@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from dea_ros.identify.dynamic_fit import DynamicObjective, fit_dynamic, select_fit_frequencies
+from dea_ros.identify.dynamic_fit import fit_dynamic, select_fit_frequencies
+from dea_ros.identify.dynamic_objective import DynamicObjective
 from dea_ros.identify.experiments import load_experiment_set
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.report import write_report

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from dea_ros.protocols import Protocol, ProtocolError, load_protocol
+from dea_ros.identify.protocols import Protocol, ProtocolError, load_protocol
 
 
 def test_shipped_protocols_load():

@@ -8,7 +8,8 @@ For testing without the main CLI::
     python -m dea_ros.identify.commands identify /tmp/a1 --out /tmp/a1_fit --json
 
 ``identify`` also accepts a rosbag2 MCAP bag (dispatched to :mod:`dea_ros.identify.from_bag`,
-which writes OUT/params.yaml and OUT/report/).
+which writes OUT/params.yaml and OUT/report/), and several inputs (:mod:`dea_ros.identify.many`,
+on the study's engine: ``--engine``, ``--workers``, ``--scheduler``).
 
 Exit codes: 0 success; 2 bad data or arguments (the message names the file, column or option
 and the fix: unreadable, binary or corrupt inputs, an existing file as ``--out``, out-of-range
@@ -20,8 +21,23 @@ import argparse
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
-from ..errors import CliError
+
+from ..bag import BagReader
+from ..errors import BagError, CliError, EngineError, ExperimentError, ParameterError
+from ..model.parameters import MembraneParameters, load_parameters
+from ..solvers.inputs import check_harmonics
+from ..study.commands import add_engine_args, engine_from_args
+from ..study.engine import Progress
+from .bag_experiments import BagTopics
+from .experiments import load_experiment_set
+from .from_bag import identify_bag, is_bag
+from .many import identify_many
+from .pipeline import IdentificationOptions, identify
+from .report import write_report
+from .synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
+from .uncertainty import DEFAULT_SAMPLES
 
 __all__ = ["register", "cmd_synth", "cmd_identify", "cmd_identify_many", "build_parser", "main"]
 
@@ -92,8 +108,6 @@ def _check_out_dir(path) -> None:
 
 
 def _check_harmonics(value) -> None:
-    from ..solvers.inputs import check_harmonics
-
     try:
         check_harmonics(value, "--harmonics")
     except ValueError as exc:
@@ -102,8 +116,6 @@ def _check_harmonics(value) -> None:
 
 def _check_membrane(name_or_path) -> None:
     """``--membrane``: a preset or a parameters YAML that loads (plausibility included), before any work."""
-    from ..model.parameters import load_parameters
-
     try:
         load_parameters(name_or_path)
     except (RecursionError, UnicodeDecodeError, OSError) as exc:
@@ -124,9 +136,6 @@ def _parse_floats(option: str, text: str) -> list:
 
 def cmd_synth(args) -> int:
     """``dea-ros synth``: write a synthetic experiment set."""
-    from ..model.parameters import MembraneParameters, ParameterError, load_parameters
-    from .synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
-
     try:
         _check_out_dir(args.out)
         try:
@@ -169,11 +178,6 @@ def _checked_options(args):
 
 def cmd_identify(args) -> int:
     """``dea-ros identify``: fit all parameters of an experiment folder, write params and report."""
-    from ..model.parameters import ParameterError
-    from .experiments import ExperimentError, load_experiment_set
-    from .pipeline import identify
-    from .report import write_report
-
     stream = sys.stderr
     progress = None if args.quiet else _progress_printer(stream)
     t0 = time.perf_counter()
@@ -202,7 +206,7 @@ def cmd_identify(args) -> int:
         t_load = time.perf_counter() - t0
         if not args.quiet:
             print(f"[data] {experiments.summary()} ({t_load:.2f} s)", file=stream, flush=True)
-        result = identify(experiments, progress=progress, **_identify_options(args, fit_freqs))
+        result = identify(experiments, IdentificationOptions(**_identify_options(args, fit_freqs)), progress=progress)
         result.timings_s = {"load": t_load, **result.timings_s}
     except (ExperimentError, ParameterError) as exc:
         return _error("identify", exc)
@@ -252,8 +256,6 @@ def _check_samples(args) -> None:
 
 def _check_input(data) -> None:
     """An experiment folder (manifest.yaml), a manifest YAML or a bag; else a usage error naming it."""
-    from .from_bag import is_bag
-
     p = Path(data)
     if not p.exists():
         raise CliError(f"DATA {data}: no such file or folder")
@@ -266,10 +268,6 @@ def cmd_identify_many(args) -> int:
     """``dea-ros identify IN1 IN2 ... --out OUT``: every input in parallel, a summary table and the spread
     (:mod:`dea_ros.identify.many`). Exit 0 all identified; 2 an input is unreadable or not identifiable
     data (named in the summary); 1 a fit failed."""
-    from ..study.commands import engine_from_args
-    from ..study.engine import EngineError
-    from .many import identify_many
-
     try:
         fit_freqs = _checked_options(args)
         for d in args.data:   # before any engine starts: each input must look like one
@@ -283,9 +281,13 @@ def cmd_identify_many(args) -> int:
     with engine:
         if not args.quiet:
             print(f"[identify] {len(args.data)} inputs on {engine.describe()}", file=sys.stderr, flush=True)
-        summary = identify_many(args.data, args.out, engine=engine, membrane=args.membrane,
-                                segments_file=args.segments, plots=not args.no_plots, progress=not args.quiet,
-                                **options)
+        bar = Progress(len(args.data), "inputs", enabled=not args.quiet)
+        try:
+            summary = identify_many(args.data, args.out, engine=engine, membrane=args.membrane,
+                                    segments_file=args.segments, plots=not args.no_plots,
+                                    progress=lambda name: bar.update(1, name), **options)
+        finally:
+            bar.close()
     rows = summary["rows"]
     if args.json:
         print(json.dumps(summary, indent=2, default=str))
@@ -309,21 +311,10 @@ def cmd_identify_many(args) -> int:
 def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | None:
     """``dea-ros identify BAG``: a rosbag2 MCAP recording instead of an experiment folder
     (via :mod:`dea_ros.identify.from_bag`). None when ``path`` is not a bag."""
-    try:
-        from .from_bag import identify_bag, is_bag
-    except ImportError:  # the bag layer (mcap) is not installed: treat as an experiment folder
-        return None
     if not is_bag(path):
         return None
-    from ..bag import BagReader
-    from ..bag.errors import BagError
-    from ..model.parameters import ParameterError
-    from .experiments import ExperimentError
-
     say = None if args.quiet else (lambda msg: print(f"[bag] {msg}", file=sys.stderr, flush=True))
     try:
-        import warnings
-
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # listed in the corruption report below if it matters
             with BagReader(path) as bag:
@@ -333,8 +324,6 @@ def _identify_bag_if_bag(args, path: Path, progress, fit_freqs, t0) -> int | Non
                            + (f" (and {len(corruption) - 1} more problems)" if len(corruption) > 1 else "")
                            + f"; 'dea-ros bag info {path}' lists them, 'dea-ros bag recover --salvage' keeps "
                              "the readable records")
-        from ..bag.extract import BagTopics
-
         topics = BagTopics(voltage=args.voltage_topic, displacement=args.displacement_topic)
         summary = identify_bag(path, args.out, membrane=args.membrane, progress=say, plots=not args.no_plots,
                                topics=topics, segments_file=args.segments,
@@ -413,13 +402,9 @@ def register(subparsers) -> dict:
                        help="joint (default): refine all identifiable parameters together with statistical weights "
                             "on every classified sine record (honest 95 %% intervals); none: the paper's two stages")
     ident.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    from .uncertainty import DEFAULT_SAMPLES
-
     ident.add_argument("--uncertainty-samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
                        help=f"Monte Carlo samples of the fit's covariance for the 95 %% band of the frequency "
                             f"response and the resonance peak in the report (default {DEFAULT_SAMPLES}; 0: none)")
-    from ..study.commands import add_engine_args
-
     add_engine_args(ident)
     ident.add_argument("--voltage-topic", default="/dea/voltage",
                        help="bags: applied-voltage topic (BatteryState or Float64; default /dea/voltage)")
@@ -427,7 +412,7 @@ def register(subparsers) -> dict:
                        help="bags: displacement topic (Range or Float64; default /dea/displacement)")
     ident.add_argument("--segments", default=None, metavar="YAML",
                        help="bags not recorded by identifier_node: the experiments' time windows "
-                            "(format in dea_ros.bag.extract)")
+                            "(format in dea_ros.identify.bag_experiments)")
     ident.set_defaults(func=cmd_identify)
     return {"synth": synth, "identify": ident}
 

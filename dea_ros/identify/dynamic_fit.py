@@ -1,41 +1,16 @@
 """Dynamic fit (paper section IV-C, eqs. 22-24): k1, eta1, eta2 from step and frequency responses.
 
-The objective is eq. 22::
-
-    J = w_step sum_steps sum_j e_d(j)^2  +  w_hbm sum_k (d_m,rms(f_k) - d_s,rms(f_k))^2
-
-with e_d the simulated minus measured displacement at every sample of a step
-record (eq. 23) and d_rms the RMS around the rest position (eq. 21) of the
-periodic response to a sine of amplitude U at frequency f_k (eq. 24). Defaults
-are the paper's: w_step = 6.6e6, w_hbm = 0.1e6, f_k = 0.2, 8.3, 11.2 and 40 Hz
-(those present in the data; all data frequencies when none is).
-
-Simulations per objective evaluation
-------------------------------------
-* step: :class:`~dea_ros.solvers.transient.TransientCollocation` (whole-trajectory
-  Hermite-Simpson collocation on the sample grid, ~1 nm from DOP853), warm-started
-  from the previous evaluation, with exact sensitivities d d(t_j)/d ln(k1, eta1, eta2).
-* frequency response, ``frequency_method="hbm"`` (default): native harmonic balance
-  (:func:`~dea_ros.solvers.harmonic_balance.solve_native`), continued from the previous
-  evaluation's solution at the same frequency, with the exact sensitivity of d_rms
-  from the collocation Jacobian (implicit function theorem: dX/dtheta = -J^-1 dR/dtheta).
-* ``frequency_method="integration"``: forward integration from rest to the periodic
-  steady state (:func:`~dea_ros.solvers.steady_state.integrate_to_steady_state`), as the
-  paper's baseline, with forward finite differences for the Jacobian -- same optimizer,
-  same data, so the speed-up of harmonic balance is measured like for like.
+Minimises eq. 22 (:class:`~dea_ros.identify.dynamic_objective.DynamicObjective`: the step samples of
+eq. 23 and the RMS values of eq. 24, harmonic balance or forward integration, exact Jacobian) with
+the static parameters fixed. Defaults are the paper's: w_step = 6.6e6, w_hbm = 0.1e6, f_k = 0.2,
+8.3, 11.2 and 40 Hz (those present in the data; all data frequencies when none is;
+:func:`select_fit_frequencies`).
 
 Optimizers: ``method="lsq"`` (default), ``scipy.optimize.least_squares`` (trust-region
 reflective) over ln(k1, eta1, eta2) with the analytic Jacobian; ``method="paper"``,
 Nelder-Mead on eq. 22 over k1/1e7, eta1/1e8, eta2/1e4 with xatol = fatol = 5e-2.
-
-Weights (:func:`resolve_weights`): the paper's by default. With them and a 4.2 s step at
-1 kHz, the frequency points carry ~1e-4 of the cost at the optimum: the fit is essentially a
-step fit, checked at four frequencies. ``weights="noise"`` uses 1/sigma^2 per residual (laser
-noise for the samples, the stated uncertainty of each RMS value), a proper chi-square in
-which the precise RMS values count. Curvature: sigma_h''(1) = sum i(i-1) beta_i - i(i+1)
-gamma_i is invisible to the static data (s - 1 < 1e-2) but shapes the large-amplitude
-response near resonance; ``curvature_direction`` makes it a 4th parameter (sensible with
-noise weights and frequencies near the resonance; the statistics say when it is not determined).
+``curvature_direction`` makes sigma_h''(1) a 4th parameter (sensible with noise weights and
+frequencies near the resonance; the statistics say when it is not determined).
 
 Initial guess (no trial and error): the oscillation after the step gives its frequency
 (FFT peak) and decay rate (log envelope); with the fitted static parameters the model
@@ -54,86 +29,40 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import least_squares, minimize
 
+from ..errors import DynamicFitError
 from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import (
-    CollocationSystem,
-    HarmonicBalanceError,
-    PeriodicSolution,
-    solve_native,
-)
-from ..solvers.inputs import SinePeriodic
-from ..solvers.steady_state import SteadyStateError, integrate_to_steady_state
-from ..solvers.transient import (
-    TransientCollocation,
-    TransientError,
-    rest_state_derivative,
-    rhs_log_parameter_derivative,
-    rhs_permittivity_derivative,
-    rhs_stress_derivative,
-)
+from ..solvers.harmonic_balance import HarmonicBalanceError
+from ..solvers.steady_state import SteadyStateError
+from ..solvers.transient import TransientError
+from .dynamic_objective import CURVATURE_UNIT_PA, PAPER_WEIGHTS, DynamicObjective
 from .experiments import SineData, StepData, estimate_noise_m
+from .frequency_points import FrequencyPoint
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import stress_combinations
-from ..errors import DynamicFitError
 
 __all__ = [
     "DynamicFitResult",
     "DynamicFitError",
-    "DynamicObjective",
-    "FrequencyPoint",
     "fit_dynamic",
     "select_fit_frequencies",
     "initial_guess",
     "PAPER_FREQUENCIES_HZ",
-    "PAPER_WEIGHTS",
     "PAPER_NORMALISATION",
-    "FREQUENCY_METHODS",
     "DYNAMIC_METHODS",
     "PARAMETER_BOUNDS",
-    "CURVATURE_UNIT_PA",
-    "resolve_weights",
-    "periodic_rms_gradient",
-    "point_solution",
 ]
 
 LOG = logging.getLogger("dea_ros.identify")
 
 PAPER_FREQUENCIES_HZ = (0.2, 8.3, 11.2, 40.0)
-#: Weights of eq. 22 (section IV-C).
-PAPER_WEIGHTS = {"step": 6.6e6, "hbm": 0.1e6}
 #: Normalisation of k1, eta1, eta2 in the paper's Nelder-Mead.
 PAPER_NORMALISATION = (1e7, 1e8, 1e4)
-FREQUENCY_METHODS = ("hbm", "integration")
 DYNAMIC_METHODS = ("lsq", "paper")
 NAMES = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
-#: Unit of the curvature coordinate of the optimizer (sigma_h''(1) in MPa).
-CURVATURE_UNIT_PA = 1e6
 #: Search box of the optimizers (Pa, Pa s, Pa s).
 PARAMETER_BOUNDS = {"k1_Pa": (1e3, 1e11), "eta1_Pa_s": (1e1, 1e13), "eta2_Pa_s": (1e-1, 1e9)}
-
-
-@dataclass(frozen=True)
-class FrequencyPoint:
-    """One frequency of eq. 24: excitation and the measured RMS (eq. 21)."""
-
-    frequency_Hz: float
-    amplitude_V: float
-    measured_rms_m: float
-    mass_kg: float
-    source: str
-    measured_std_m: float | None = None
-    periodic_input: object = None  # the applied waveform (SineData.inputs); None: the nominal sine
-    #: the response the record shows and is fitted with: "periodic" (period of u^2, T/2) or
-    #: "period-doubled" (period T; the full-period harmonic balance on the period-doubled branch)
-    kind: str = "periodic"
-    guess: object = None           # a collocation state on the matching branch (seeds harmonic balance)
-
-    @property
-    def excitation(self):
-        """The periodic input of eq. 24 (the applied waveform, or the nominal sine)."""
-        return self.periodic_input or SinePeriodic(self.amplitude_V, self.frequency_Hz)
 
 
 def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
@@ -173,325 +102,6 @@ def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
             )
         chosen += hit
     return sorted(chosen, key=lambda p: p.frequency_Hz)
-
-
-def resolve_weights(weights, steps: Sequence[StepData], points: Sequence[FrequencyPoint],
-                    noise_m: float | None = None):
-    """Weights of eq. 22 as (description, sqrt weight per step, sqrt weight per frequency point).
-
-    * ``None`` or ``"paper"``: w_step = 6.6e6 per step sample, w_hbm = 0.1e6 per frequency (the paper).
-    * a dict ``{"step": w, "hbm": w}``: those (missing keys: the paper's).
-    * ``"noise"``: statistical weights 1/sigma^2 -- sigma = the laser noise (``noise_m``, else
-      estimated from each step's pre-step baseline) for the step samples and the
-      ``d_rms_std_m`` column for the RMS values -- so that J is a chi-square and the
-      frequency data carry the weight their precision deserves.
-    """
-    if weights is None or (isinstance(weights, str) and weights == "paper"):
-        w = dict(PAPER_WEIGHTS)
-        return ("paper", w), [math.sqrt(w["step"])] * len(steps), np.full(len(points), math.sqrt(w["hbm"]))
-    if isinstance(weights, dict):
-        w = dict(PAPER_WEIGHTS)
-        unknown = set(weights) - set(w)
-        if unknown:
-            raise ValueError(f"weights: unknown key(s) {sorted(unknown)}; use 'step' and 'hbm'")
-        w.update({k: float(v) for k, v in weights.items()})
-        if min(w.values()) < 0:
-            raise ValueError(f"weights: must be >= 0, got {w}")
-        return ("custom", w), [math.sqrt(w["step"])] * len(steps), np.full(len(points), math.sqrt(w["hbm"]))
-    if weights != "noise":
-        raise ValueError(f"weights: 'paper', 'noise' or a dict, got {weights!r}")
-    sq_steps = []
-    for step in steps:
-        sigma = noise_m if noise_m is not None else estimate_noise_m(step)
-        if sigma is None or sigma <= 0:
-            raise DynamicFitError(
-                f"{step.source}: weights='noise' needs the laser noise: give sensor_noise_m in the manifest "
-                "(the estimate from the record failed)"
-            )
-        sq_steps.append(1.0 / sigma)
-    sq_points = []
-    for p in points:
-        if p.measured_std_m is None:
-            raise DynamicFitError(
-                f"{p.source}: weights='noise' needs the column d_rms_std_m (standard uncertainty of each RMS "
-                "value); add it or use the paper's weights"
-            )
-        sq_points.append(1.0 / p.measured_std_m)
-    return ("noise", {"step_sigma_m": [1 / x for x in sq_steps], "rms_sigma_m": [1 / x for x in sq_points]}), \
-        sq_steps, np.asarray(sq_points, float)
-
-
-class DynamicObjective:
-    """Residuals of eq. 22 and their Jacobian w.r.t. theta = ln(k1, eta1, eta2).
-
-    ``residuals(theta)`` = [sqrt(w_step) (d_sim - d_meas) for every step sample,
-    sqrt(w_hbm) (rms_sim - rms_meas) for every frequency point], so that
-    ``sum(residuals**2)`` is the cost J of eq. 22. Evaluations are cached per theta
-    (the Jacobian of an evaluated point is free), timed per part and counted.
-    """
-
-    def __init__(
-        self,
-        static_params: MembraneParameters,
-        steps: Sequence[StepData],
-        frequency_points: Sequence[FrequencyPoint],
-        weights: dict | None = None,
-        frequency_method: str = "hbm",
-        n_harmonics: int = 8,
-        progress: Callable[[dict], None] | None = None,
-        integration_options: dict | None = None,
-        curvature_direction=None,
-        noise_m: float | None = None,
-    ):
-        if frequency_method not in FREQUENCY_METHODS:
-            raise ValueError(f"frequency_method: choose one of {FREQUENCY_METHODS}, got {frequency_method!r}")
-        self.base = static_params
-        self.steps = list(steps)
-        self.points = list(frequency_points)
-        self.weights, self.sq_w_steps, self.sq_w_points = resolve_weights(
-            weights, self.steps, self.points, noise_m)
-        self.frequency_method = frequency_method
-        self.n_harmonics = int(n_harmonics)
-        self.progress = progress
-        self.integration_options = dict(integration_options or {})
-        self.solvers = [TransientCollocation(s.time_s, s.voltage_V, hold=s.voltage_hold) for s in self.steps]
-        # Optional 4th parameter: sigma_h''(1) moved along a (beta, gamma) direction (in MPa).
-        self.direction = None
-        self.base_beta_gamma = np.r_[static_params.beta_Pa, static_params.gamma_Pa]
-        if curvature_direction is not None:
-            self.direction = np.asarray(curvature_direction, float).reshape(6) * CURVATURE_UNIT_PA
-        self.n_params = 3 if self.direction is None else 4
-        self.masses = sorted({p.mass_kg for p in self.points})
-        self._rest_cache: dict = {}
-        self._hb_guess: dict[int, np.ndarray] = {}
-        self._cache: dict[bytes, tuple] = {}
-        self.n_evaluations = 0
-        self.n_jacobians = 0
-        self.time_step_s = 0.0
-        self.time_frequency_s = 0.0
-        self.history: list[dict] = []
-        self.fallbacks: list[str] = []
-
-    # -------------------------------------------------------------- parameters
-    def parameters(self, theta) -> MembraneParameters:
-        theta = np.asarray(theta, float)
-        k1, eta1, eta2 = np.exp(theta[:3])
-        changes = {"k1_Pa": float(k1), "eta1_Pa_s": float(eta1), "eta2_Pa_s": float(eta2)}
-        if self.direction is not None:
-            bg = self.base_beta_gamma + theta[3] * self.direction
-            changes["beta_Pa"] = tuple(float(v) for v in bg[:3])
-            changes["gamma_Pa"] = tuple(float(v) for v in bg[3:])
-        return self.base.replace(**changes)
-
-    def start_vector(self, k1_Pa, eta1_Pa_s, eta2_Pa_s) -> np.ndarray:
-        """theta for given k1, eta1, eta2 (curvature coordinate 0: the static fit's beta/gamma)."""
-        theta = np.log([k1_Pa, eta1_Pa_s, eta2_Pa_s])
-        return theta if self.direction is None else np.r_[theta, 0.0]
-
-    def rest(self, params, mass_kg: float):
-        """Rest displacement at 0 V (d0 of eq. 21) and its derivative along the curvature direction."""
-        key = (mass_kg, params.beta_Pa, params.gamma_Pa)
-        hit = self._rest_cache.get(key)
-        if hit is None:
-            p = params if mass_kg == params.mass_kg else params.replace(mass_kg=mass_kg)
-            d0 = float(static_equilibrium(p, 0.0).displacement_m)
-            dd0 = (float(rest_state_derivative(p, 0.0, self.direction[None, :], d0)[0, 0])
-                   if self.direction is not None else 0.0)
-            if len(self._rest_cache) > 32:
-                self._rest_cache.clear()
-            hit = self._rest_cache[key] = (d0, dd0)
-        return hit
-
-    @property
-    def n_residuals(self) -> int:
-        return sum(s.n_samples for s in self.steps) + len(self.points)
-
-    # -------------------------------------------------------------- parts
-    def _step_part(self, params, jac: bool):
-        res, rows = [], []
-        sims = []
-        for step, solver, sq_w in zip(self.steps, self.solvers, self.sq_w_steps):
-            p = params if step.mass_kg == params.mass_kg else params.replace(mass_kg=step.mass_kg)
-            sol = solver.solve(p, sensitivities=jac,
-                               stress_directions=None if self.direction is None else self.direction[None, :])
-            sims.append(sol.displacement_m)
-            res.append(sq_w * (sol.displacement_m - step.displacement_m))
-            if jac:
-                rows.append(sq_w * sol.displacement_sensitivity_m.T)
-        return res, rows, sims
-
-    def _hbm_solve(self, params, k: int, point: FrequencyPoint) -> PeriodicSolution:
-        sol = point_solution(params, point, self.n_harmonics, self._hb_guess.get(k))
-        self._hb_guess[k] = sol.state
-        return sol
-
-    def _rms_gradient(self, params, sol: PeriodicSolution, d0: float, dd0: float) -> tuple[float, np.ndarray]:
-        """d_rms (eq. 21) and its gradient w.r.t. theta at a harmonic-balance solution."""
-        dirs = None if self.direction is None else self.direction[None, :]
-        return periodic_rms_gradient(params, sol, d0, np.atleast_1d(dd0)[: 0 if dirs is None else 1], dirs)
-
-    def _integration_rms(self, params, point: FrequencyPoint) -> float:
-        sine = point.periodic_input or SinePeriodic(point.amplitude_V, point.frequency_Hz)
-        p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
-        with np.errstate(over="ignore", invalid="ignore"):  # rejected trial steps of DOP853
-            sol = integrate_to_steady_state(p, sine, **self.integration_options)
-        return sol.displacement_rms(self.rest(params, point.mass_kg)[0])
-
-    def _frequency_part(self, params, theta, jac: bool, known_sim=None):
-        """Residuals (and rows) of eq. 24. ``known_sim``: RMS values already computed at theta
-        (the integration method then only adds the finite differences)."""
-        sim = np.empty(len(self.points))
-        rows = np.zeros((len(self.points), self.n_params))
-        for k, point in enumerate(self.points):
-            p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
-            d0, dd0 = self.rest(params, point.mass_kg)
-            if self.frequency_method == "hbm":
-                try:
-                    sol = self._hbm_solve(p, k, point)
-                    if jac:
-                        sim[k], rows[k] = self._rms_gradient(p, sol, d0, dd0)
-                    else:
-                        sim[k] = sol.displacement_rms(d0)
-                    continue
-                except HarmonicBalanceError as exc:
-                    msg = (f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
-                           "used forward integration for that evaluation")
-                    self.fallbacks.append(msg)
-                    LOG.warning(msg)
-                    self._hb_guess.pop(k, None)
-            sim[k] = known_sim[k] if known_sim is not None else self._integration_rms(p, point)
-            if jac:  # forward differences in theta
-                h = 1e-4
-                for j in range(self.n_params):
-                    tj = np.array(theta, float)
-                    tj[j] += h
-                    rows[k, j] = (self._integration_rms(self.parameters(tj), point) - sim[k]) / h
-        res = self.sq_w_points * (sim - np.array([p.measured_rms_m for p in self.points]))
-        return res, self.sq_w_points[:, None] * rows, sim
-
-    # -------------------------------------------------------------- evaluate
-    def evaluate(self, theta, jacobian: bool = True):
-        """(residuals, jacobian or None, details) at theta; cached."""
-        theta = np.asarray(theta, float)
-        key = theta.tobytes()
-        hit = self._cache.get(key)
-        if hit is not None and (hit[1] is not None or not jacobian):
-            return hit
-        params = self.parameters(theta)
-        known = hit[2]["simulated_rms_m"] if hit is not None else None
-        t0 = time.perf_counter()
-        step_res, step_rows, step_sims = self._step_part(params, jacobian)
-        t1 = time.perf_counter()
-        freq_res, freq_rows, freq_sims = (self._frequency_part(params, theta, jacobian, known)
-                                          if self.points else
-                                          (np.empty(0), np.zeros((0, self.n_params)), np.empty(0)))
-        t2 = time.perf_counter()
-        self.time_step_s += t1 - t0
-        self.time_frequency_s += t2 - t1
-        if hit is None:
-            self.n_evaluations += 1
-        if jacobian:
-            self.n_jacobians += 1
-        res = np.concatenate(step_res + [freq_res])
-        jac = np.vstack(step_rows + [freq_rows]) if jacobian else None
-        details = {"step_simulated_m": step_sims, "simulated_rms_m": freq_sims,
-                   "step_cost": float(sum(r @ r for r in step_res)), "frequency_cost": float(freq_res @ freq_res)}
-        cost = float(res @ res)
-        if hit is None:  # a new point (not the Jacobian of a point already evaluated)
-            record = {"stage": "dynamic", "evaluation": self.n_evaluations, "iteration": self.n_evaluations,
-                      "cost": cost,
-                      "k1_Pa": params.k1_Pa, "eta1_Pa_s": params.eta1_Pa_s, "eta2_Pa_s": params.eta2_Pa_s}
-            if self.direction is not None:
-                record["sigma_h''(1)_Pa"] = float(stress_combinations(params.beta_Pa, params.gamma_Pa)[2])
-            self.history.append(record)
-            LOG.debug("dynamic fit evaluation %d: J = %.6g (k1 %.5g Pa, eta1 %.5g Pa s, eta2 %.5g Pa s)",
-                      self.n_evaluations, cost, params.k1_Pa, params.eta1_Pa_s, params.eta2_Pa_s)
-            if self.progress:
-                self.progress(record)
-        out = (res, jac, details)
-        if len(self._cache) > 64:
-            self._cache.clear()
-        self._cache[key] = out
-        return out
-
-    def residuals(self, theta) -> np.ndarray:
-        # With harmonic balance the sensitivities cost little: compute them with every
-        # evaluation (least_squares asks for the Jacobian at accepted points).
-        return self.evaluate(theta, jacobian=self.frequency_method == "hbm")[0]
-
-    def jacobian(self, theta) -> np.ndarray:
-        return self.evaluate(theta, jacobian=True)[1]
-
-    def cost(self, theta) -> float:
-        """J of eq. 22."""
-        r = self.evaluate(theta, jacobian=False)[0]
-        return float(r @ r)
-
-
-# --------------------------------------------------------------------------- sensitivities
-def point_solution(params: MembraneParameters, point: FrequencyPoint, n_harmonics: int,
-                   guess=None) -> PeriodicSolution:
-    """The harmonic-balance solution a frequency point is fitted with (its ``kind``).
-
-    ``periodic``: N harmonics of 2f (period T/2), seeded from ``guess`` or the point's branch
-    state (so a coexisting branch is kept). ``period-doubled``: 2N harmonics of f on the full
-    period (the same spectral reach), seeded from a state of the period-doubled branch; a solve
-    that falls back onto the symmetric orbit raises :class:`HarmonicBalanceError`.
-    """
-    seed = guess if guess is not None else point.guess
-    if point.kind == "period-doubled":
-        if seed is None:
-            raise HarmonicBalanceError(f"{point.frequency_Hz:g} Hz: no period-doubled orbit to start from")
-        sol = solve_native(params, point.excitation, 2 * n_harmonics, x_guess=seed, use_symmetry=False,
-                           stability=False)
-        if sol.odd_harmonic_ratio() < 1e-3:
-            raise HarmonicBalanceError(f"{point.frequency_Hz:g} Hz: the period-doubled orbit vanished "
-                                       "(these parameters have no period doubling there)")
-        return sol
-    try:
-        return solve_native(params, point.excitation, n_harmonics, x_guess=seed, stability=False)
-    except HarmonicBalanceError:
-        return solve_native(params, point.excitation, n_harmonics, stability=False)  # cold (homotopy)
-
-
-def periodic_rms_gradient(params: MembraneParameters, sol: PeriodicSolution, d0: float, dd0=None,
-                          directions=None, permittivity: bool = False) -> tuple[float, np.ndarray]:
-    """d_rms (eq. 21) of a harmonic-balance solution and its exact gradient.
-
-    Gradient w.r.t. (ln k1, ln eta1, ln eta2), then the coefficients c_j of ``directions`` (q, 6)
-    in (beta, gamma), then eps_r when ``permittivity``; by the implicit function theorem on the
-    collocation equations, dX/dtheta = -J^-1 dR/dtheta. ``dd0`` (one value per direction and
-    eps_r): the derivative of the reference d0 (the rest position moves with the stress).
-    Works for any response period (T/2 or the full period of a period-doubled orbit).
-    """
-    model = DEAModel.from_parameters(params)
-    m = sol.n_points
-    divisor = sol.period_divisor
-    omega = sol.periodic_input.omega * divisor
-    phases = 2.0 * np.pi * np.arange(m) / m
-    u2 = sol.periodic_input.at_phase(phases / divisor) ** 2
-    x = sol.state
-    d_ref = max(float(np.max(np.abs(x[0]))), 1e-6)
-    scale = np.array([d_ref, max(float(np.max(np.abs(x[1]))), 1e-9), d_ref * omega])
-    system = CollocationSystem(model, m, scale, omega)
-    _r, jac = system.residual_and_jacobian(system.to_z(x), omega, u2)
-    g = rhs_log_parameter_derivative(model, x)                     # (3 params, 3, M)
-    if directions is not None:
-        g = np.concatenate([g, rhs_stress_derivative(model, x, directions)], axis=0)
-    if permittivity:
-        g = np.concatenate([g, rhs_permittivity_derivative(model, x, u2)], axis=0)
-    n_par = g.shape[0]
-    dr = -(g / (scale * omega)[None, :, None]).reshape(n_par, 3 * m)  # scaled dR/dtheta
-    dz = np.linalg.solve(jac, -dr.T)                                 # (3M, P)
-    dd = dz[:m] * scale[0]                                           # d(d_k)/dtheta, (M, P)
-    dev = x[0] - d0
-    rms = float(np.sqrt(np.mean(dev**2)))
-    if dd0 is not None and n_par > 3:
-        dd = dd.copy()
-        extra = np.asarray(dd0, float).reshape(-1)
-        dd[:, 3:3 + extra.size] -= extra[None, :]                    # d0 moves with the stress
-    grad = (dev @ dd) / (m * rms) if rms > 0 else np.zeros(n_par)
-    return rms, grad
 
 
 # --------------------------------------------------------------------------- initial guess
@@ -721,43 +331,57 @@ def fit_dynamic(
         starts, info = initial_guess(objective)
         if start is not None:
             starts.append(objective.start_vector(start.k1_Pa, start.eta1_Pa_s, start.eta2_Pa_s))
-    names = NAMES + (("sigma_h''(1)_Pa",) if objective.n_params == 4 else ())
     lo, hi = _bounds(objective.n_params)
     best = None
     start_log = []
-
-    def describe(theta):
-        p = objective.parameters(theta)
-        out = {n: float(getattr(p, n)) for n in NAMES}
-        if objective.n_params == 4:
-            out["sigma_h''(1)_Pa"] = float(stress_combinations(p.beta_Pa, p.gamma_Pa)[2])
-        return out
-
     for x0 in starts:
         x0 = np.clip(x0, lo + 1e-6, hi - 1e-6)
-        if method == "lsq":
-            sol = least_squares(objective.residuals, x0, jac=objective.jacobian, bounds=(lo, hi),
-                                method="trf", x_scale=1.0, ftol=1e-9, xtol=1e-9, gtol=1e-10,
-                                max_nfev=max_evaluations)
-            theta, cost, msg, ok = sol.x, float(sol.fun @ sol.fun), sol.message, sol.status > 0
-        else:
-            norm = np.array(PAPER_NORMALISATION)
-
-            def nm_cost(y):
-                if np.any(y <= 0):
-                    return 1e30
-                return objective.cost(np.log(y * norm))
-
-            opts = {"xatol": 5e-2, "fatol": 5e-2, "maxfev": max_evaluations * 5}
-            opts.update(nelder_mead_options or {})
-            sol = minimize(nm_cost, np.exp(x0) / norm, method="Nelder-Mead", options=opts)
-            theta = np.log(np.clip(sol.x, 1e-300, None) * norm)
-            cost, msg, ok = float(sol.fun), sol.message, bool(sol.success)
-        start_log.append({"start": describe(x0), "end": describe(theta),
+        theta, cost, msg, ok = _optimise(objective, x0, method, lo, hi, max_evaluations, nelder_mead_options)
+        start_log.append({"start": _describe(objective, x0), "end": _describe(objective, theta),
                           "cost": cost, "message": str(msg), "success": ok})
         if best is None or cost < best[1]:
             best = (theta, cost, ok, msg)
     theta, cost, ok, msg = best
+    result = _dynamic_result(objective, theta, method, lo, hi, ok, msg)
+    result.initial, result.starts, result.wall_time_s = info, start_log, time.perf_counter() - t0
+    return result
+
+
+def _describe(objective: DynamicObjective, theta) -> dict:
+    """k1, eta1, eta2 (and sigma_h''(1)) at ``theta``."""
+    p = objective.parameters(theta)
+    out = {n: float(getattr(p, n)) for n in NAMES}
+    if objective.n_params == 4:
+        out["sigma_h''(1)_Pa"] = float(stress_combinations(p.beta_Pa, p.gamma_Pa)[2])
+    return out
+
+
+def _optimise(objective: DynamicObjective, x0, method: str, lo, hi, max_evaluations: int,
+              nelder_mead_options: dict | None) -> tuple:
+    """(theta, cost, message, converged) of one local optimisation from ``x0``: least squares with the
+    exact Jacobian ("lsq") or the paper's Nelder-Mead on normalised k1, eta1, eta2 ("paper")."""
+    if method == "lsq":
+        sol = least_squares(objective.residuals, x0, jac=objective.jacobian, bounds=(lo, hi),
+                            method="trf", x_scale=1.0, ftol=1e-9, xtol=1e-9, gtol=1e-10,
+                            max_nfev=max_evaluations)
+        return sol.x, float(sol.fun @ sol.fun), sol.message, sol.status > 0
+    norm = np.array(PAPER_NORMALISATION)
+
+    def nm_cost(y):
+        if np.any(y <= 0):
+            return 1e30
+        return objective.cost(np.log(y * norm))
+
+    opts = {"xatol": 5e-2, "fatol": 5e-2, "maxfev": max_evaluations * 5}
+    opts.update(nelder_mead_options or {})
+    sol = minimize(nm_cost, np.exp(x0) / norm, method="Nelder-Mead", options=opts)
+    theta = np.log(np.clip(sol.x, 1e-300, None) * norm)
+    return theta, float(sol.fun), sol.message, bool(sol.success)
+
+
+def _dynamic_result(objective: DynamicObjective, theta, method: str, lo, hi, ok: bool, msg) -> DynamicFitResult:
+    """The result at the optimum ``theta``: parameters, linearised statistics, warnings (no timing, starts)."""
+    names = NAMES + (("sigma_h''(1)_Pa",) if objective.n_params == 4 else ())
     res, jac, details = objective.evaluate(theta, jacobian=True)
     params = objective.parameters(theta)
     values = np.exp(theta[:3])
@@ -777,12 +401,13 @@ def fit_dynamic(
                         "constrain it (or the model cannot reproduce the data)")
     warnings += sorted(set(objective.fallbacks))
     return DynamicFitResult(
-        parameters=params, method=method, frequency_method=frequency_method, frequency_points=points,
+        parameters=params, method=method, frequency_method=objective.frequency_method,
+        frequency_points=objective.points,
         simulated_rms_m=np.asarray(details["simulated_rms_m"]), step_simulated_m=details["step_simulated_m"],
         cost=float(res @ res), step_cost=details["step_cost"], frequency_cost=details["frequency_cost"],
-        statistics=stats, initial=info, n_evaluations=objective.n_evaluations,
-        n_jacobians=objective.n_jacobians, wall_time_s=time.perf_counter() - t0,
+        statistics=stats, initial={}, n_evaluations=objective.n_evaluations,
+        n_jacobians=objective.n_jacobians, wall_time_s=0.0,
         time_step_s=objective.time_step_s, time_frequency_s=objective.time_frequency_s,
-        history=objective.history, warnings=warnings, starts=start_log,
+        history=objective.history, warnings=warnings,
         curvature_fitted=objective.n_params == 4, weights=objective.weights,
     )

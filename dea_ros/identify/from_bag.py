@@ -2,7 +2,7 @@
 
 Used by identifier_node when its protocol ends and by ``dea-ros identify BAG``. Works for bags
 recorded by identifier_node and for any rosbag2 MCAP bag with compatible topic types when the
-experiments are described by a segments YAML (see :mod:`dea_ros.bag.extract`).
+experiments are described by a segments YAML (see :mod:`dea_ros.identify.bag_experiments`).
 """
 from __future__ import annotations
 
@@ -10,7 +10,10 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from ..bag.extract import BagTopics, experiments_from_bag
+from .bag_experiments import BagTopics, experiments_from_bag
+from .pipeline import identify
+from .report import write_report
+from .result import IdentificationResult
 
 __all__ = ["identify_bag", "is_bag"]
 
@@ -23,13 +26,34 @@ def is_bag(path) -> bool:
     return p.is_dir() and ((p / "metadata.yaml").is_file() or any(p.glob("*.mcap")))
 
 
+def _headline(result: IdentificationResult) -> list:
+    """The lines a node logs when the identification of a bag ends: parameters, peaks, steps, warnings."""
+    p = result.parameters
+    headline = [
+        f"eps_r {p.relative_permittivity:.4g}, k1 {p.k1_Pa / 1e6:.4g} MPa, eta1 {p.eta1_Pa_s / 1e6:.4g} MPa s, "
+        f"eta2 {p.eta2_Pa_s / 1e3:.4g} kPa s",
+    ]
+    for fr in result.evaluation.sines:
+        for res in fr.resonance:
+            if res.get("measured"):
+                headline.append(
+                    f"resonance at {res['amplitude_V']:g} V: measured {res['measured_peak_Hz']:.3f} Hz, "
+                    f"model {res['simulated_peak_Hz']:.3f} Hz ({res['error_percent']:.2f} % apart)")
+            else:
+                headline.append(f"resonance at {res['amplitude_V']:g} V: model {res['simulated_peak_Hz']:.3f} Hz; "
+                                f"measured peak {res.get('measured_note', 'not measured')}")
+    for k, st in enumerate(result.evaluation.steps):
+        headline.append(f"step {k + 1}: model vs measured RMS error {st.indices['rms_error_um']:.2f} um "
+                        f"(IAE {st.indices['IAE_mm_s']:.4f} mm s)")
+    if result.warnings:
+        headline += [f"warning: {w}" for w in result.warnings[:5]]
+    return headline
+
+
 def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = BagTopics(),
                  segments_file=None, progress: Callable[[str], None] | None = None, plots: bool = True,
                  **identify_options) -> dict:
     """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict."""
-    from .pipeline import identify
-    from .report import write_report
-
     say = progress or (lambda _msg: None)
     t0 = time.perf_counter()
     experiments = experiments_from_bag(bag, topics=topics, segments_file=segments_file, membrane=membrane)
@@ -60,25 +84,6 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
     params_file = out / "params.yaml"
     params_file.write_text(Path(paths["params"]).read_text())
     p = result.parameters
-    metrics = result.evaluation
-    headline = [
-        f"eps_r {p.relative_permittivity:.4g}, k1 {p.k1_Pa / 1e6:.4g} MPa, eta1 {p.eta1_Pa_s / 1e6:.4g} MPa s, "
-        f"eta2 {p.eta2_Pa_s / 1e3:.4g} kPa s",
-    ]
-    for fr in (metrics.get("frequency_response") or []) if isinstance(metrics, dict) else []:
-        for res in fr.get("resonance", []):
-            if res.get("measured"):
-                headline.append(
-                    f"resonance at {res['amplitude_V']:g} V: measured {res['measured_peak_Hz']:.3f} Hz, "
-                    f"model {res['simulated_peak_Hz']:.3f} Hz ({res['error_percent']:.2f} % apart)")
-            else:
-                headline.append(f"resonance at {res['amplitude_V']:g} V: model {res['simulated_peak_Hz']:.3f} Hz; "
-                                f"measured peak {res.get('measured_note', 'not measured')}")
-    for k, st in enumerate(metrics.get("steps", []) if isinstance(metrics, dict) else []):
-        headline.append(f"step {k + 1}: model vs measured RMS error {st['rms_error_um']:.2f} um "
-                        f"(IAE {st['IAE_mm_s']:.4f} mm s)")
-    if result.warnings:
-        headline += [f"warning: {w}" for w in result.warnings[:5]]
     return {
         "params_file": str(params_file),
         "report_dir": str(report_dir),
@@ -90,5 +95,5 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
         "uncertainty": [b.to_dict() for b in result.uncertainty],
         "warnings": list(result.warnings),
         "timings_s": {"extract": t_extract, "fit": t_fit, "report": paths.get("report_s", 0.0)},
-        "headline": headline,
+        "headline": _headline(result),
     }

@@ -49,8 +49,9 @@ from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..solvers.harmonic_balance import HarmonicBalanceError
 from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
-from .dynamic_fit import PARAMETER_BOUNDS, FrequencyPoint, periodic_rms_gradient, point_solution
+from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m
+from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
 from ..errors import JointFitError
@@ -295,39 +296,54 @@ def fit_joint(
         point_s = [s if s is not None else 1e-7 for s in point_s]
     if not points:
         fit_curvature = False
-    objective = JointObjective(start, static, steps, points, static_sigma_m, step_s, point_s,
-                               prior_beta_gamma, fit_curvature, n_harmonics, fit_slope)
+
+    def objective_from(first: MembraneParameters, rms_sigmas) -> JointObjective:
+        return JointObjective(first, static, steps, points, static_sigma_m, step_s, rms_sigmas, prior_beta_gamma,
+                              fit_curvature, n_harmonics, fit_slope)
+
+    objective = objective_from(start, point_s)
     lo, hi = objective.bounds()
-
-    def run(obj, x0):
-        def fun(x):
-            r = obj.residuals(x)
-            if progress:
-                progress({"stage": "joint", "evaluation": obj.n_evaluations, "cost": float(r @ r)})
-            return r
-
-        return least_squares(fun, np.clip(x0, lo + 1e-9, hi - 1e-9), jac=obj.jacobian, bounds=(lo, hi),
-                             method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10,
-                             max_nfev=max_evaluations)
-
     try:
-        sol = run(objective, objective.theta0())
+        sol = _least_squares(objective, lo, hi, max_evaluations, progress)
         if estimated_rms_sigma and points:
             # no stated uncertainty of the RMS values: their scatter about the fit estimates it
-            res = objective.residuals(sol.x)
-            r_f = res[-len(points):] * np.asarray(point_s)
-            n_f = len(points)
-            sig = math.sqrt(float(r_f @ r_f) / max(n_f - 1, 1))
-            sig = max(sig, 1e-9)
+            sig = _scatter_sigma(objective, sol.x, point_s)
             point_s = [s if p.measured_std_m is None else p.measured_std_m for s, p in
-                       zip([sig] * n_f, points)]
-            objective = JointObjective(objective.parameters(sol.x), static, steps, points, static_sigma_m,
-                                       step_s, point_s, prior_beta_gamma, fit_curvature, n_harmonics, fit_slope)
-            sol = run(objective, objective.theta0())
+                       zip([sig] * len(points), points)]
+            objective = objective_from(objective.parameters(sol.x), point_s)
+            sol = _least_squares(objective, lo, hi, max_evaluations, progress)
             warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
                             f"scatter about the fit, {sig * 1e6:.3g} um")
     except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
         raise JointFitError(f"joint refinement failed: {exc}") from None
+    sigmas = {"static_m": static_sigma_m, "step_m": list(step_s), "rms_m": [float(s) for s in point_s]}
+    return _joint_result(objective, sol, lo, hi, sigmas, warnings, curvature_fallback_Pa, curvature_rel_ci_limit, t0)
+
+
+def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
+    """scipy's trust-region least squares on ``obj`` from its start, reporting every evaluation."""
+    def fun(x):
+        r = obj.residuals(x)
+        if progress:
+            progress({"stage": "joint", "evaluation": obj.n_evaluations, "cost": float(r @ r)})
+        return r
+
+    return least_squares(fun, np.clip(obj.theta0(), lo + 1e-9, hi - 1e-9), jac=obj.jacobian, bounds=(lo, hi),
+                         method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_evaluations)
+
+
+def _scatter_sigma(objective: JointObjective, theta, point_s) -> float:
+    """The standard deviation of the RMS values about the fit at ``theta`` (m)."""
+    n_f = len(point_s)
+    res = objective.residuals(theta)
+    r_f = res[-n_f:] * np.asarray(point_s)
+    sig = math.sqrt(float(r_f @ r_f) / max(n_f - 1, 1))
+    return max(sig, 1e-9)
+
+
+def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings: list, curvature_fallback_Pa,
+                  curvature_rel_ci_limit: float, t0: float) -> JointFitResult:
+    """The result at the optimum ``sol``: parameters, linearised statistics, warnings."""
     res, jac, details = objective.evaluate(sol.x)
     params = objective.parameters(sol.x)
     q = len(objective.stress_index)
@@ -355,9 +371,8 @@ def fit_joint(
         curvature_fitted="sigma_h''(1)_Pa" in objective.names,
         curvature_identified=identified,
         curvature_fallback_Pa=float(curvature_fallback_Pa) if curvature_fallback_Pa is not None else float("nan"),
-        cost=float(res @ res), dof=dof, block_chi2=details["blocks"],
-        sigmas={"static_m": static_sigma_m, "step_m": list(step_s), "rms_m": [float(s) for s in point_s]},
-        frequency_points=points, simulated_rms_m=details["simulated_rms_m"],
+        cost=float(res @ res), dof=dof, block_chi2=details["blocks"], sigmas=sigmas,
+        frequency_points=objective.points, simulated_rms_m=details["simulated_rms_m"],
         n_evaluations=objective.n_evaluations, wall_time_s=time.perf_counter() - t0, warnings=warnings,
         message=str(sol.message),
     )

@@ -1,8 +1,10 @@
 """Identify many membranes at once: experiment folders or bags in parallel, a summary table, the spread.
 
 ``dea-ros identify IN1 IN2 ... --out OUT`` (more than one input) runs :func:`identify_input` for
-every input on an :class:`~dea_ros.study.engine.Engine` (local processes or Dask, the study's
-engine: one task per input) and writes
+every input on an engine (one task per input; the CLI passes the study's
+:class:`~dea_ros.study.engine.Engine`, local processes or Dask: any object with
+``map_unordered(fn, items)`` yielding ``(key, result, exception)`` and ``describe()``; without one, in
+this process) and writes
 
 * ``OUT/<input name>/``: what ``dea-ros identify`` writes for one input (params.yaml, report);
 * ``OUT/summary.csv`` and ``OUT/summary.md``: one row per input: the identified parameters with
@@ -20,8 +22,16 @@ import csv
 import math
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
+
+from ..errors import BagError, ExperimentError, NoEquilibriumError, ParameterError
+from .bag_experiments import BagTopics
+from .experiments import load_experiment_set
+from .from_bag import identify_bag, is_bag
+from .pipeline import identify
+from .report import write_report
 
 __all__ = ["identify_input", "identify_many", "SUMMARY_PARAMETERS", "labels_for"]
 
@@ -81,16 +91,9 @@ def identify_input(data, out_dir, membrane=None, topics=None, segments_file=None
                    label: str | None = None, **identify_options) -> dict:
     """Identify one experiment folder or bag into ``out_dir`` (params.yaml and the report); return a summary
     row (parameters, 95 % intervals, resonance peak, warnings). Errors propagate."""
-    from .experiments import load_experiment_set
-    from .from_bag import identify_bag, is_bag
-    from .pipeline import identify
-    from .report import write_report
-
     path = Path(str(data))
     label = label or labels_for([path])[0]
     if is_bag(path) and not (path / "manifest.yaml").is_file():
-        from ..bag.extract import BagTopics
-
         summary = identify_bag(path, out_dir, membrane=membrane, topics=topics or BagTopics(),
                                segments_file=segments_file, plots=plots, **identify_options)
         return _row_from(label, str(data), summary.get("identification", {}), summary["parameters"],
@@ -98,19 +101,11 @@ def identify_input(data, out_dir, membrane=None, topics=None, segments_file=None
     result = identify(load_experiment_set(path), **identify_options)
     write_report(result, out_dir, plots=plots)
     return _row_from(label, str(data), result.identification_metadata(), result.parameters.to_dict(),
-                     result.evaluation, list(result.warnings), [b.to_dict() for b in result.uncertainty])
+                     result.evaluation.to_dict(), list(result.warnings), [b.to_dict() for b in result.uncertainty])
 
 
 def _task(task: dict) -> dict:
     """Engine task: one input; never raises (the row says what went wrong)."""
-    from ..model.equilibrium import NoEquilibriumError
-    from ..model.parameters import ParameterError
-    from .experiments import ExperimentError
-
-    try:
-        from ..bag.errors import BagError
-    except ImportError:  # the bag layer is optional here
-        BagError = ExperimentError  # noqa: N806
     t0 = time.perf_counter()
     label, data = task["label"], task["data"]
     try:
@@ -212,12 +207,19 @@ def plot_spread(rows: list, path) -> Path | None:
     return Path(path)
 
 
-def identify_many(inputs, out_dir, engine=None, membrane=None, segments_file=None, plots: bool = True,
-                  progress: bool = True, **identify_options) -> dict:
-    """Identify every input into ``out_dir/<name>/`` on ``engine`` (default serial); write the summary table
-    and the spread plot; return {"rows", "summary_csv", "summary_md", "spread", "wall_time_s"}."""
-    from ..study.engine import Engine, Progress
+def _in_process(tasks):
+    """``(key, row, None)`` of every task, one after the other in this process (no engine)."""
+    for key, task in tasks:
+        yield key, _task(task), None
 
+
+def identify_many(inputs, out_dir, engine=None, membrane=None, segments_file=None, plots: bool = True,
+                  progress: Callable[[str], None] | None = None, **identify_options) -> dict:
+    """Identify every input into ``out_dir/<name>/``; write the summary table and the spread plot; return
+    {"rows", "summary_csv", "summary_md", "spread", "wall_time_s", "engine"}.
+
+    ``engine``: an open engine to run the inputs on (module docstring); None: one after the other in this
+    process. ``progress``: called with the name of each input when it is done."""
     t0 = time.perf_counter()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -226,25 +228,17 @@ def identify_many(inputs, out_dir, engine=None, membrane=None, segments_file=Non
     tasks = [(k, {"label": lab, "data": data, "out_dir": str(out / lab), "membrane": membrane,
                   "segments": segments_file, "plots": plots, "options": dict(identify_options)})
              for k, (lab, data) in enumerate(zip(labels, inputs))]
-    own = engine is None
-    engine = engine or Engine("serial")
-    bar = Progress(len(tasks), "inputs", enabled=progress)
     rows: dict = {}
-    try:
-        engine.open()
-        for k, row, exc in engine.map_unordered(_task, tasks):
-            if exc is not None:
-                row = {"input": inputs[k], "name": labels[k], "status": _FIT_FAILED,
-                       "error": f"{type(exc).__name__}: {exc}"}
-            rows[k] = row
-            bar.update(1, row["name"])
-    finally:
-        bar.close()
-        if own:
-            engine.close()
+    for k, row, exc in (engine.map_unordered(_task, tasks) if engine is not None else _in_process(tasks)):
+        if exc is not None:
+            row = {"input": inputs[k], "name": labels[k], "status": _FIT_FAILED,
+                   "error": f"{type(exc).__name__}: {exc}"}
+        rows[k] = row
+        if progress:
+            progress(row["name"])
     ordered = [rows[k] for k in sorted(rows)]
     paths = _write_summary(ordered, out)
     spread = plot_spread(ordered, out / "spread.png") if plots else None
     return {"rows": ordered, "summary_csv": str(paths["csv"]), "summary_md": str(paths["md"]),
             "spread": str(spread) if spread else None, "wall_time_s": time.perf_counter() - t0,
-            "engine": engine.describe()}
+            "engine": engine.describe() if engine is not None else "serial (this process)"}

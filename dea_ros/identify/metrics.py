@@ -19,8 +19,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
-from scipy import stats as stats_module
+from scipy import stats as scipy_stats
 
 __all__ = [
     "ParameterStatistics",
@@ -134,6 +133,31 @@ def parameter_statistics(
     no_dof = n <= p
     dof = max(n - p, 1)
     s2 = float(res @ res) / dof if not no_dof else float("inf")
+    sv, rank, var, unseen, corr = _linearised_covariance(jac, s2, rcond)
+    with np.errstate(invalid="ignore"):
+        std_internal = np.sqrt(np.where(unseen | no_dof, np.inf, var))
+    t = float(scipy_stats.t.ppf(0.5 + confidence / 2.0, dof))
+    is_log = np.broadcast_to(np.asarray(log_parameters, dtype=bool), (p,))
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        lo = np.where(is_log, values * np.exp(-t * std_internal), values - t * std_internal)
+        hi = np.where(is_log, values * np.exp(t * std_internal), values + t * std_internal)
+        std_error = np.where(is_log, np.abs(values) * std_internal, std_internal)
+        rel = np.where(is_log, (hi - lo) / (2.0 * np.abs(values)), t * std_internal / np.abs(values))
+    rel = np.where(np.isfinite(rel), rel, np.inf)
+    warnings = _identifiability_warnings(names, rel, corr, rank, unseen, n, no_dof, confidence, relative_ci_limit,
+                                         correlation_limit, f"{context}: " if context else "")
+    return ParameterStatistics(
+        names=names, values=values, std_error=std_error, ci_low=lo, ci_high=hi, relative_ci=rel,
+        correlation=corr, residual_std=math.sqrt(s2), dof=0 if no_dof else dof, rank=rank,
+        singular_values=sv, confidence=confidence, warnings=warnings,
+        log_parameters=tuple(bool(x) for x in is_log),
+    )
+
+
+def _linearised_covariance(jac: np.ndarray, s2: float, rcond: float) -> tuple:
+    """(singular values, rank, variances, unseen, correlation) of the Jacobian's linearised covariance
+    s^2 (J^T J)^-1: columns normalised before the SVD; parameters along directions the data do not see
+    (``unseen``) get no finite variance; correlations from a minimally regularised inverse."""
     norms = np.linalg.norm(jac, axis=0)
     norms_safe = np.where(norms > 0, norms, 1.0)
     jn = jac / norms_safe
@@ -149,24 +173,21 @@ def parameter_statistics(
     unseen = (norms == 0)
     if null.size:
         unseen |= np.any(np.abs(null) > 1e-6, axis=0)
-    with np.errstate(invalid="ignore"):
-        std_internal = np.sqrt(np.where(unseen | no_dof, np.inf, var))
     # Correlations from a ridge-regularised inverse (finite even when rank-deficient).
     ridge = (1e-10 * smax) ** 2
     cov_r = (vt.T * (1.0 / (sv**2 + ridge))) @ vt
     d = np.sqrt(np.diag(cov_r))
     corr = cov_r / np.outer(d, d)
     np.fill_diagonal(corr, 1.0)
-    t = float(stats.t.ppf(0.5 + confidence / 2.0, dof))
-    is_log = np.broadcast_to(np.asarray(log_parameters, dtype=bool), (p,))
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        lo = np.where(is_log, values * np.exp(-t * std_internal), values - t * std_internal)
-        hi = np.where(is_log, values * np.exp(t * std_internal), values + t * std_internal)
-        std_error = np.where(is_log, np.abs(values) * std_internal, std_internal)
-        rel = np.where(is_log, (hi - lo) / (2.0 * np.abs(values)), t * std_internal / np.abs(values))
-    rel = np.where(np.isfinite(rel), rel, np.inf)
+    return sv, rank, var, unseen, corr
+
+
+def _identifiability_warnings(names, rel, corr, rank, unseen, n, no_dof, confidence, relative_ci_limit,
+                              correlation_limit, prefix) -> list:
+    """Where the data cannot pin a parameter down: no degrees of freedom, rank deficiency, a wide
+    interval, a pair that trades off."""
+    p = len(names)
     warnings = []
-    prefix = f"{context}: " if context else ""
     if no_dof:
         warnings.append(f"{prefix}{n} residual(s) for {p} parameters: no degrees of freedom left, the "
                         "uncertainty of the parameters is unknown (add data)")
@@ -190,12 +211,7 @@ def parameter_statistics(
                     f"{prefix}{names[i]} and {names[j]} trade off (correlation {corr[i, j]:+.4f}): "
                     "the data constrain a combination of them, not each one"
                 )
-    return ParameterStatistics(
-        names=names, values=values, std_error=std_error, ci_low=lo, ci_high=hi, relative_ci=rel,
-        correlation=corr, residual_std=math.sqrt(s2), dof=0 if no_dof else dof, rank=rank,
-        singular_values=sv, confidence=confidence, warnings=warnings,
-        log_parameters=tuple(bool(x) for x in is_log),
-    )
+    return warnings
 
 
 def linear_combination_ci(stats: ParameterStatistics, weights: dict):
@@ -218,7 +234,7 @@ def linear_combination_ci(stats: ParameterStatistics, weights: dict):
 
 def stats_t(stats: ParameterStatistics) -> float:
     """The t quantile of the statistics' confidence level and degrees of freedom."""
-    return float(stats_module.t.ppf(0.5 + stats.confidence / 2.0, max(stats.dof, 1)))
+    return float(scipy_stats.t.ppf(0.5 + stats.confidence / 2.0, max(stats.dof, 1)))
 
 
 def _trapezoid(y, x) -> float:

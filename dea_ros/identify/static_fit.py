@@ -50,6 +50,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares, minimize
 
+from ..model.dynamics import DEAModel
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
 from .experiments import StaticData
@@ -188,7 +189,7 @@ class StaticFitResult:
         as the fit: closest to the prior, or the mu_i of eqs. 8-9): the direction along which
         the dynamic fit may move the curvature the static data cannot see."""
         rep = OgdenRepresentation(self.parameters.prestretch, 3, self.prior_beta_gamma)
-        return rep._gain[:, 2].copy()
+        return rep.gain[:, 2].copy()
 
     @property
     def errors_um(self) -> dict:
@@ -284,8 +285,6 @@ class _StaticProblem:
         base = self.c1bar * d / s
         cols = [base * s ** (i + 1) for i in range(3)] + [-base * s ** (-(i + 1)) for i in range(3)]
         cols.append(-self.c1bar * d * self.kappa * self.u2)
-        from ..model.dynamics import DEAModel  # local import: only needed here
-
         model = DEAModel.from_parameters(params.replace(mass_kg=max(params.mass_kg, 1e-6)))
         dfdd = model.static_stiffness_N_per_m(d, self.u2)
         dfdd = np.where(d > 0.0, dfdd, np.inf)
@@ -369,83 +368,92 @@ def _finish(template, beta, gamma, eps_r, data, problem, method, stats, cost, nf
 
 
 # --------------------------------------------------------------------------- least squares
-def _fit_lsq(template, data, problem, stress_terms, prior, progress, t0, curvature_Pa=None):
-    n_sigma = stress_terms
-    n_params = n_sigma + 1
-    _check_static_data(data, n_params)
-    prior_bg = None if prior is None else np.r_[prior[0], prior[1]]
-    if curvature_Pa is None:
-        # sigma_h''(1) follows the representation of the fitted combinations
-        rep = OgdenRepresentation(template.prestretch, n_sigma, prior_bg)
-        gain = rep.combination_gain()      # (3, n_sigma): all combinations vs fitted ones
-        offset = rep.combinations(np.zeros(n_sigma))
-        fixed_tail = np.zeros(0)
-    else:
-        # sigma_h''(1) given (e.g. identified by the dynamic fit): match all three exactly
-        if n_sigma != 2:
-            raise ValueError("curvature_Pa: only with stress_terms=2")
-        rep = OgdenRepresentation(template.prestretch, 3, prior_bg)
-        gain = np.eye(3)[:, :2]
-        offset = np.array([0.0, 0.0, float(curvature_Pa)])
-        fixed_tail = np.array([float(curvature_Pa)])
+class _CombinationFit:
+    """Eq. 20's displacement residuals over the fitted stress combinations and eps_r (optimizer units:
+    the combinations in _SIGMA_REF_PA), their Jacobian, bounds and the linear starts."""
 
-    def unpack(x):
-        fitted = x[:n_sigma] * _SIGMA_REF_PA
-        return offset + gain @ fitted, x[n_sigma]
+    def __init__(self, problem: _StaticProblem, template: MembraneParameters, n_sigma: int, prior_bg,
+                 curvature_Pa: float | None):
+        self.problem, self.n_sigma = problem, n_sigma
+        if curvature_Pa is None:
+            # sigma_h''(1) follows the representation of the fitted combinations
+            self.rep = OgdenRepresentation(template.prestretch, n_sigma, prior_bg)
+            self.gain = self.rep.combination_gain()      # (3, n_sigma): all combinations vs fitted ones
+            self.offset = self.rep.combinations(np.zeros(n_sigma))
+            self.fixed_tail = np.zeros(0)
+        else:
+            # sigma_h''(1) given (e.g. identified by the dynamic fit): match all three exactly
+            if n_sigma != 2:
+                raise ValueError("curvature_Pa: only with stress_terms=2")
+            self.rep = OgdenRepresentation(template.prestretch, 3, prior_bg)
+            self.gain = np.eye(3)[:, :2]
+            self.offset = np.array([0.0, 0.0, float(curvature_Pa)])
+            self.fixed_tail = np.array([float(curvature_Pa)])
+        self.lower = np.r_[1e-2, np.full(n_sigma - 1, -np.inf), 1.0]
+        self.upper = np.r_[np.full(n_sigma, np.inf), 50.0]
+        self.nfev = 0
+        # the linear equation-error system of eq. 20 at the measured displacements
+        # (m g s / (c1bar d) = sigma_h(s) - kappa eps_r s u^2 is linear in the parameters)
+        use = (problem.mass > 0) & (problem.d_meas > 0.05 * np.max(problem.d_meas))
+        d = problem.d_meas[use]
+        s = 1.0 + d * d / problem.l0_sq
+        y = problem.weight[use] * s / (problem.c1bar * d)
+        x1 = s - 1.0
+        basis = np.column_stack([np.ones_like(d), x1, 0.5 * x1 * x1])
+        self._a_sigma = basis @ self.gain                          # (n, n_sigma)
+        self._rhs = y - basis @ self.offset
+        self._maxwell = -problem.kappa * s * problem.u2[use]
 
-    nfev = [0]
+    def unpack(self, x):
+        """(sigma_0, sigma_1, sigma_2) in Pa and eps_r of the optimizer vector ``x``."""
+        fitted = x[:self.n_sigma] * _SIGMA_REF_PA
+        return self.offset + self.gain @ fitted, x[self.n_sigma]
 
-    def residuals(x):
-        sig, eps_r = unpack(x)
-        d, ok = problem.equilibrium(sig, eps_r)
-        nfev[0] += 1
+    def residuals(self, x):
+        sig, eps_r = self.unpack(x)
+        d, ok = self.problem.equilibrium(sig, eps_r)
+        self.nfev += 1
         # No equilibrium (the membrane collapses): a residual of l0 per point.
-        return np.where(ok, d - problem.d_meas, problem.l0)
+        return np.where(ok, d - self.problem.d_meas, self.problem.l0)
 
-    def jacobian(x):
-        sig, eps_r = unpack(x)
-        d, _ok = problem.equilibrium(sig, eps_r)
-        jac3 = problem.displacement_jacobian(d, sig, eps_r, 3)      # vs sigma_0..2, eps_r
-        jac = np.column_stack([jac3[:, :3] @ gain * _SIGMA_REF_PA, jac3[:, 3]])
-        return jac
+    def jacobian(self, x):
+        sig, eps_r = self.unpack(x)
+        d, _ok = self.problem.equilibrium(sig, eps_r)
+        jac3 = self.problem.displacement_jacobian(d, sig, eps_r, 3)      # vs sigma_0..2, eps_r
+        return np.column_stack([jac3[:, :3] @ self.gain * _SIGMA_REF_PA, jac3[:, 3]])
 
-    # Start 1: linear equation-error solution of eq. 20 at the measured displacements
-    # (m g s / (c1bar d) = sigma_h(s) - kappa eps_r s u^2 is linear in the parameters).
-    use = (problem.mass > 0) & (problem.d_meas > 0.05 * np.max(problem.d_meas))
-    d = problem.d_meas[use]
-    s = 1.0 + d * d / problem.l0_sq
-    y = problem.weight[use] * s / (problem.c1bar * d)
-    x1 = s - 1.0
-    basis = np.column_stack([np.ones_like(d), x1, 0.5 * x1 * x1])
-    a_sigma = basis @ gain                                   # (n, n_sigma)
-    rhs = y - basis @ offset
-    maxwell = -problem.kappa * s * problem.u2[use]
-
-    def linear_start(eps_r=None):
+    def linear_start(self, eps_r=None):
+        """The linear equation-error solution (eps_r fitted, or given), as an optimizer vector."""
         if eps_r is None:
-            a = np.column_stack([a_sigma, maxwell])
+            a = np.column_stack([self._a_sigma, self._maxwell])
             cs = np.linalg.norm(a, axis=0)
-            c, *_ = np.linalg.lstsq(a / cs, rhs, rcond=None)
+            c, *_ = np.linalg.lstsq(a / cs, self._rhs, rcond=None)
             c /= cs
         else:
-            cs = np.linalg.norm(a_sigma, axis=0)
-            c, *_ = np.linalg.lstsq(a_sigma / cs, rhs - maxwell * eps_r, rcond=None)
+            cs = np.linalg.norm(self._a_sigma, axis=0)
+            c, *_ = np.linalg.lstsq(self._a_sigma / cs, self._rhs - self._maxwell * eps_r, rcond=None)
             c = np.r_[c / cs, eps_r]
         c[-1] = float(np.clip(c[-1], 1.05, 45.0))
         c[0] = max(c[0], 1e3)
-        return np.r_[c[:n_sigma] / _SIGMA_REF_PA, c[-1]]
+        return np.r_[c[:self.n_sigma] / _SIGMA_REF_PA, c[-1]]
 
-    lower = np.r_[1e-2, np.full(n_sigma - 1, -np.inf), 1.0]
-    upper = np.r_[np.full(n_sigma, np.inf), 50.0]
-    x_lin = linear_start()
+    def beta_gamma(self, x) -> tuple:
+        """(beta, gamma) of the representation for the optimizer vector ``x``."""
+        bg = self.rep.beta_gamma(np.r_[x[:self.n_sigma] * _SIGMA_REF_PA, self.fixed_tail])
+        return tuple(float(v) for v in bg[:3]), tuple(float(v) for v in bg[3:])
+
+
+def _best_of_starts(fit: _CombinationFit, progress) -> tuple:
+    """(solution, cost, starts): least squares from the linear start and with eps_r halved and doubled."""
+    x_lin = fit.linear_start()
     eps_lin = float(x_lin[-1])
     best = None
     starts = []
     for label, x0 in (("linear", x_lin),
-                      ("eps_r/2", linear_start(max(eps_lin / 2, 1.05))),
-                      ("eps_r*2", linear_start(min(eps_lin * 2, 45.0)))):
-        x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
-        sol = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), method="trf",
+                      ("eps_r/2", fit.linear_start(max(eps_lin / 2, 1.05))),
+                      ("eps_r*2", fit.linear_start(min(eps_lin * 2, 45.0)))):
+        x0 = np.clip(x0, fit.lower + 1e-9, fit.upper - 1e-9)
+        sol = least_squares(fit.residuals, x0, jac=fit.jacobian, bounds=(fit.lower, fit.upper), method="trf",
                             x_scale="jac", ftol=1e-14, xtol=1e-14, gtol=1e-14, max_nfev=200)
         cost = float(sol.fun @ sol.fun)
         starts.append({"start": label, "eps_r_start": float(x0[-1]), "eps_r": float(sol.x[-1]),
@@ -453,14 +461,22 @@ def _fit_lsq(template, data, problem, stress_terms, prior, progress, t0, curvatu
         LOG.debug("static fit (lsq) start %s: sum of squares %.6g m^2, eps_r %.5g", label, cost, sol.x[-1])
         if progress:
             progress({"stage": "static", "method": "lsq", "start": label, "cost": cost,
-                      "rms_um": math.sqrt(cost / sol.fun.size) * 1e6, "evaluations": nfev[0]})
+                      "rms_um": math.sqrt(cost / sol.fun.size) * 1e6, "evaluations": fit.nfev})
         if best is None or cost < best[1]:
             best = (sol, cost)
-    sol, cost = best
-    sig, eps_r = unpack(sol.x)
+    return best[0], best[1], starts
+
+
+def _fit_lsq(template, data, problem, stress_terms, prior, progress, t0, curvature_Pa=None):
+    n_sigma = stress_terms
+    _check_static_data(data, n_sigma + 1)
+    prior_bg = None if prior is None else np.r_[prior[0], prior[1]]
+    fit = _CombinationFit(problem, template, n_sigma, prior_bg, curvature_Pa)
+    sol, cost, starts = _best_of_starts(fit, progress)
+    sig, eps_r = fit.unpack(sol.x)
     names = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa")[:n_sigma] + ("eps_r",)
     values = np.r_[sol.x[:n_sigma] * _SIGMA_REF_PA, eps_r]
-    jac = jacobian(sol.x)
+    jac = fit.jacobian(sol.x)
     jac[:, :n_sigma] /= _SIGMA_REF_PA
     stats = parameter_statistics(jac, sol.fun, names, values, context="static fit")
     warnings = list(stats.warnings)
@@ -468,11 +484,10 @@ def _fit_lsq(template, data, problem, stress_terms, prior, progress, t0, curvatu
     if max(spread) - min(spread) > 0.01 * eps_r and max(st["sum_sq_m2"] for st in starts) < 1.01 * cost:
         warnings.append(f"static fit: starts ended at different eps_r ({', '.join(f'{e:.3g}' for e in spread)}) "
                         "with equal cost: eps_r is not determined by these data")
-    bg = rep.beta_gamma(np.r_[sol.x[:n_sigma] * _SIGMA_REF_PA, fixed_tail])
-    beta, gamma = tuple(float(v) for v in bg[:3]), tuple(float(v) for v in bg[3:])
-    result = _finish(template, beta, gamma, eps_r, data, problem, "lsq", stats, cost, nfev[0], t0,
+    beta, gamma = fit.beta_gamma(sol.x)
+    result = _finish(template, beta, gamma, eps_r, data, problem, "lsq", stats, cost, fit.nfev, t0,
                      starts, warnings, sig)
-    result.representation = rep.kind
+    result.representation = fit.rep.kind
     result.prior_beta_gamma = prior_bg
     return result
 

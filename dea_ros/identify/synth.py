@@ -199,32 +199,16 @@ def synthesize_experiments(
     if noise_m > 1e-4:
         raise ValueError(f"noise_m: {noise_m} m is larger than the deflections; metres expected (1 um -> 1e-6)")
     rng = np.random.default_rng(seed)
-    mass = params.mass_kg
-    # ---- static points (eq. 20)
-    masses, volts, disp = [], [], []
-    for m in static_masses_kg:
-        masses.append(float(m))
-        volts.append(0.0)
-        disp.append(float(static_equilibrium(params, 0.0, mass_kg=float(m)).displacement_m))
-    eq_v = static_equilibrium(params, np.asarray(static_voltages_V, float))
-    for u, d in zip(static_voltages_V, np.atleast_1d(eq_v.displacement_m)):
-        masses.append(float(mass))
-        volts.append(float(u))
-        disp.append(float(d))
-    disp = np.asarray(disp) + rng.normal(0.0, noise_m / math.sqrt(static_samples), len(disp))
-    static = StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static")
+    static = _static_points(params, noise_m, rng, static_masses_kg, static_voltages_V, static_samples)
     if progress:
         progress({"stage": "synth", "what": "static", "points": static.n_points})
     # ---- step (eq. 23)
     t, u_step, d_step = _clean_step(params, float(step_voltage_V), float(step_time_s), float(step_duration_s),
                                     float(sample_rate_Hz))
-    n = t.size
-    step = StepData(t, u_step, d_step + rng.normal(0.0, noise_m, n),
-                    mass_kg=mass, voltage_hold="zoh", source="synthetic step")
+    step = StepData(t, u_step, d_step + rng.normal(0.0, noise_m, t.size),
+                    mass_kg=params.mass_kg, voltage_hold="zoh", source="synthetic step")
     if progress:
-        progress({"stage": "synth", "what": "step", "samples": n})
-    # ---- sines (eqs. 21, 24): an upward sweep on the rig
-    d_rest = float(static_equilibrium(params, 0.0).displacement_m)
+        progress({"stage": "synth", "what": "step", "samples": t.size})
     freqs = np.sort(np.asarray(sine_frequencies_Hz, float))
     if isinstance(series_frequencies_Hz, str):
         if series_frequencies_Hz != "all":
@@ -234,14 +218,54 @@ def synthesize_experiments(
         series_set = {round(float(f), 9) for f in series_frequencies_Hz}
     if waveform not in WAVEFORMS:
         raise ValueError(f"waveform: one of {WAVEFORMS}, got {waveform!r}")
+    sines, kinds = _sines(params, noise_m, rng, freqs, float(sine_amplitude_V), series_set, float(sine_record_s),
+                          float(sample_rate_Hz), baseline_samples, waveform, progress)
+    notes = (f"synthetic data from dea_ros.identify.synth: membrane {params.name}, laser noise "
+             f"{noise_m:g} m, seed {seed}, waveform {waveform}; true parameters in truth.yaml (not read by identify)")
+    odd = [f"{f:g} Hz {k}" for f, k in zip(freqs, kinds) if k != "periodic"]
+    if odd:
+        notes += "; responses that are not periodic at T/2: " + ", ".join(odd)
+    return ExperimentSet(
+        membrane=params.name,
+        geometry={k: getattr(params, k) for k in GEOMETRY_FIELDS},
+        mass_kg=params.mass_kg,
+        static=[static],
+        steps=[step],
+        sines=sines,
+        sensor_noise_m=float(noise_m) if noise_m > 0 else None,
+        notes=notes,
+    )
+
+
+def _static_points(params: MembraneParameters, noise_m: float, rng, masses_kg, voltages_V,
+                   samples: int) -> StaticData:
+    """Static points (eq. 20): every mass at 0 V, every voltage at the dynamic mass; means of ``samples``."""
+    masses, volts, disp = [], [], []
+    for m in masses_kg:
+        masses.append(float(m))
+        volts.append(0.0)
+        disp.append(float(static_equilibrium(params, 0.0, mass_kg=float(m)).displacement_m))
+    eq_v = static_equilibrium(params, np.asarray(voltages_V, float))
+    for u, d in zip(voltages_V, np.atleast_1d(eq_v.displacement_m)):
+        masses.append(float(params.mass_kg))
+        volts.append(float(u))
+        disp.append(float(d))
+    disp = np.asarray(disp) + rng.normal(0.0, noise_m / math.sqrt(samples), len(disp))
+    return StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static")
+
+
+def _sines(params: MembraneParameters, noise_m: float, rng, freqs: np.ndarray, amplitude_V: float, series_set: set,
+           record_s: float, sample_rate_Hz: float, baseline_samples: int, waveform: str, progress) -> tuple:
+    """([SineData] of an upward sweep on the rig (eqs. 21, 24), the response kind per frequency)."""
+    d_rest = float(static_equilibrium(params, 0.0).displacement_m)
     rms, d0s, stds, series, kinds = [], [], [], [], []
-    clean = _clean_sines(params, float(sine_amplitude_V), tuple(float(f) for f in freqs), float(sine_record_s),
-                         float(sample_rate_Hz)) if freqs.size else []
+    clean = _clean_sines(params, amplitude_V, tuple(float(f) for f in freqs), record_s,
+                         sample_rate_Hz) if freqs.size else []
     d0_std = noise_m / math.sqrt(baseline_samples)
     for f, ts, d_true, kind in clean:
         d_noisy = d_true + rng.normal(0.0, noise_m, ts.size)
         d0 = d_rest + float(np.mean(rng.normal(0.0, noise_m, baseline_samples)))
-        u = sine_amplitude_V * np.sin(2 * np.pi * f * ts)
+        u = amplitude_V * np.sin(2 * np.pi * f * ts)
         if waveform == "abs_sine":
             u = np.abs(u)
         record = SineSeries(float(f), ts, u, d_noisy, source=f"synthetic sine {f:g} Hz")
@@ -255,24 +279,10 @@ def synthesize_experiments(
         if progress:
             progress({"stage": "synth", "what": "sine", "frequency_Hz": float(f), "kind": kind,
                       "rms_um": rms[-1] * 1e6})
-    sines = [SineData(freqs, np.full(freqs.size, float(sine_amplitude_V)), np.asarray(rms), mass_kg=mass,
+    sines = [SineData(freqs, np.full(freqs.size, amplitude_V), np.asarray(rms), mass_kg=params.mass_kg,
                       d0_m=np.asarray(d0s), series=tuple(series), source="synthetic sines",
                       d_rms_std_m=np.asarray(stds), waveform=waveform)] if freqs.size else []
-    notes = (f"synthetic data from dea_ros.identify.synth: membrane {params.name}, laser noise "
-             f"{noise_m:g} m, seed {seed}, waveform {waveform}; true parameters in truth.yaml (not read by identify)")
-    odd = [f"{f:g} Hz {k}" for f, k in zip(freqs, kinds) if k != "periodic"]
-    if odd:
-        notes += "; responses that are not periodic at T/2: " + ", ".join(odd)
-    return ExperimentSet(
-        membrane=params.name,
-        geometry={k: getattr(params, k) for k in GEOMETRY_FIELDS},
-        mass_kg=mass,
-        static=[static],
-        steps=[step],
-        sines=sines,
-        sensor_noise_m=float(noise_m) if noise_m > 0 else None,
-        notes=notes,
-    )
+    return sines, kinds
 
 
 def synthesize(

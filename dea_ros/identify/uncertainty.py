@@ -26,11 +26,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters, ParameterError
+from ..solvers.continuation import frequency_sweep
+from ..solvers.harmonic_balance import HarmonicBalanceError, solve_native_batch
+from ..solvers.inputs import SinePeriodic
+from .experiments import ExperimentSet
 from .metrics import ParameterStatistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation
 
-__all__ = ["ResponseBand", "sample_parameters", "response_band", "DEFAULT_SAMPLES", "STRESS_NAMES"]
+__all__ = ["ResponseBand", "sample_parameters", "response_band", "response_bands", "DEFAULT_SAMPLES", "STRESS_NAMES",
+           "BAND_POINTS"]
 
 #: Monte Carlo samples by default (``dea-ros identify --uncertainty-samples``): the 2.5/97.5 % quantiles of
 #: 48 samples bound the band to within ~+-30 % of its width, enough to see where the model is unsure.
@@ -40,6 +46,9 @@ DEFAULT_SAMPLES = 48
 STRESS_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa")
 _FIELDS = {"eps_r": "relative_permittivity", "k1_Pa": "k1_Pa", "eta1_Pa_s": "eta1_Pa_s", "eta2_Pa_s": "eta2_Pa_s"}
 _BATCH = 16
+#: Frequencies of a confidence band: over the range of a sine data set, and as many again within
+#: +-15 % of the model's resonance peak (where the band is widest).
+BAND_POINTS = 40
 
 
 @dataclass
@@ -131,9 +140,6 @@ def sample_parameters(params: MembraneParameters, statistics: ParameterStatistic
 
 def _nominal(p: MembraneParameters, amplitude_V: float, freqs: np.ndarray, n_harmonics: int):
     """The identified model's sweep: (d_rms per frequency, state per frequency, peak frequency, peak d_rms)."""
-    from ..solvers.continuation import frequency_sweep
-    from ..solvers.inputs import SinePeriodic
-
     sweep = frequency_sweep(p, SinePeriodic(amplitude_V, float(freqs[0])), freqs, n_harmonics=n_harmonics,
                             stability=False, branch_switching=False, realised=False)
     d = sweep.realised_d_rms_m
@@ -153,11 +159,6 @@ def _responses(task: dict) -> list:
     identified model's solutions (so each sample stays on the branch the identified model's upward sweep
     is on); the peak: a continuation sweep over +-``window`` around the identified peak, located on the
     branch (NaN when it sits on the window's edge)."""
-    from ..model.equilibrium import static_equilibrium
-    from ..solvers.continuation import frequency_sweep
-    from ..solvers.harmonic_balance import solve_native_batch
-    from ..solvers.inputs import SinePeriodic
-
     freqs = np.asarray(task["frequencies_Hz"], float)
     amp, n_h = float(task["amplitude_V"]), int(task["n_harmonics"])
     f_peak, w = float(task["peak_Hz"]), float(task["window"])
@@ -239,3 +240,28 @@ def response_band(params: MembraneParameters, statistics: ParameterStatistics, a
         peak_d_rms_ci_m=ci(peaks_d), samples=len(samples), n_failed=n_samples - len(samples),
         confidence=confidence, parameters=tuple(statistics.names), seed=seed, sample_peaks_Hz=peaks_f,
         sample_curves_m=curves)
+
+
+def response_bands(params: MembraneParameters, statistics: ParameterStatistics | None, experiments: ExperimentSet,
+                   n_samples: int, n_harmonics: int = 8, engine=None, peaks: dict | None = None) -> tuple:
+    """(bands, warnings): a :func:`response_band` per sine data set and amplitude of ``experiments``, on
+    :data:`BAND_POINTS` frequencies over its range and as many within +-15 % of the model's peak
+    (``peaks``: (source, amplitude V) -> the model's peak frequency in Hz); a warning where none can be drawn."""
+    peaks = peaks or {}
+    bands, warnings = [], []
+    if statistics is None:
+        return bands, ["no confidence band of the frequency response: no dynamic fit statistics"]
+    for sine in experiments.sines:
+        for a in np.unique(sine.amplitude_V):
+            f = sine.frequency_Hz[sine.amplitude_V == a]
+            grid = np.linspace(f.min(), f.max(), BAND_POINTS)
+            fp = peaks.get((sine.source, float(a)))
+            if fp is not None and np.isfinite(fp):
+                near = np.linspace(0.85 * fp, 1.15 * fp, BAND_POINTS)
+                grid = np.union1d(grid, near[(near >= f.min()) & (near <= f.max())])
+            try:
+                bands.append(response_band(params, statistics, float(a), grid, n_samples=n_samples,
+                                           n_harmonics=n_harmonics, mass_kg=sine.mass_kg, engine=engine))
+            except (ValueError, HarmonicBalanceError, RuntimeError) as exc:
+                warnings.append(f"{sine.source}: no confidence band of the frequency response at {a:g} V ({exc})")
+    return bands, warnings

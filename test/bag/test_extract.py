@@ -6,9 +6,9 @@ import pytest
 import yaml
 
 from dea_ros.bag import BagError, BagWriter, sensor_data_qos
-from dea_ros.bag.extract import EXPERIMENT_METADATA, experiments_from_bag
+from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, BagTopics, experiments_from_bag
+from dea_ros.identify.protocols import load_protocol
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.protocols import load_protocol
 from dea_ros.solvers import SampledVoltage, SinePeriodic, simulate, solve_native
 
 T0_NS = 1_700_000_000_000_000_000
@@ -91,8 +91,6 @@ def test_foreign_bag_needs_a_segments_file(recorded, tmp_path):
             t = T0_NS + k * 1_000_000
             bag.write("/rig/u", {"data": 0.0 if k < 1000 else 2200.0}, t)
             bag.write("/rig/d", {"data": 7.3e-4 if k < 1000 else 8.4e-4}, t)
-    from dea_ros.bag.extract import BagTopics
-
     topics = BagTopics(voltage="/rig/u", displacement="/rig/d")
     with pytest.raises(BagError, match="segments YAML"):
         experiments_from_bag(plain, topics=topics)
@@ -108,8 +106,6 @@ def test_foreign_bag_needs_a_segments_file(recorded, tmp_path):
 
 def test_missing_and_mistyped_topics(recorded, tmp_path):
     path, _ = recorded
-    from dea_ros.bag.extract import BagTopics
-
     with pytest.raises(BagError, match="no displacement topic '/dea/laser'"):
         experiments_from_bag(path, topics=BagTopics(displacement="/dea/laser"))
     odd = tmp_path / "odd"

@@ -4,15 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dea_ros.identify.dynamic_fit import (
-    DynamicFitError,
-    DynamicObjective,
-    FrequencyPoint,
-    fit_dynamic,
-    resolve_weights,
-    select_fit_frequencies,
-)
+from dea_ros.identify.dynamic_fit import DynamicFitError, fit_dynamic, select_fit_frequencies
+from dea_ros.identify.dynamic_objective import DynamicObjective, resolve_weights
 from dea_ros.identify.experiments import SineData
+from dea_ros.identify.frequency_points import FrequencyPoint
 from dea_ros.identify.static_fit import OgdenRepresentation
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.solvers.harmonic_balance import solve_native

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from dea_ros.identify.experiments import GEOMETRY_FIELDS, ExperimentSet, SineData
-from dea_ros.identify.pipeline import classify_records, evaluate
+from dea_ros.identify.classification import classify_records
+from dea_ros.identify.evaluation import evaluate
 from dea_ros.solvers import SineVoltage, simulate
 from dea_ros.solvers.integrate import initial_state
 
@@ -69,7 +70,8 @@ def test_a_record_the_model_does_not_reproduce_is_reported(integrated, seed):
     freqs = [9.0, 12.5, 16.0]
     rms = [integrated[f] for f in freqs]
     rms[2] *= 1.6       # the rig's jittered staircase: 59 um on the T/2 orbit measured as 97 um
-    metrics, _curves, warnings = evaluate(UNLIKE, experiment_set(freqs, rms, seed), sweep_points=30)
+    evaluation = evaluate(UNLIKE, experiment_set(freqs, rms, seed), sweep_points=30)
+    metrics, warnings = evaluation.to_dict(), evaluation.warnings
     flagged = [w for w in warnings if "does not reproduce" in w]
     assert len(flagged) == 1 and "16 Hz" in flagged[0]
     assert "9 Hz" not in flagged[0] and "12.5 Hz" not in flagged[0]
@@ -100,7 +102,7 @@ def test_a_sampled_record_with_a_transient_left_is_reported(integrated, seed):
                         d_rms_std_m=[3e-8], source=f"records {label}")
         exp = ExperimentSet(membrane="X7", geometry={k: getattr(UNLIKE, k) for k in GEOMETRY_FIELDS},
                             mass_kg=UNLIKE.mass_kg, sines=[sine], base_parameters=UNLIKE, sensor_noise_m=1e-6)
-        _m, _c, warnings = evaluate(UNLIKE, exp, sweep_points=20)
+        warnings = evaluate(UNLIKE, exp, sweep_points=20).warnings
         warned[label] = [w for w in warnings if "does not reproduce the sampled record" in w]
         change, change_std = ser.settling_m(d0, 1e-6)        # halves' d_rms: the bag's settling test
         assert (abs(change) > 3 * change_std) == (label == "ringing"), (label, change, change_std)

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from dea_ros.identify.experiments import SineSeries
-from dea_ros.identify.pipeline import series_model
+from dea_ros.identify.evaluation import series_model
 from dea_ros.identify.report import write_report
 from dea_ros.model import MembraneParameters, preset
 from dea_ros.solvers.continuation import frequency_sweep

@@ -52,7 +52,7 @@ def test_default_identification_recovers_the_parameters(identified, name):
 
 @pytest.mark.parametrize("name", ["LP1", "A2"])
 def test_default_fit_reproduces_the_data_within_the_noise(identified, name):
-    ev = identified(name, "paper").evaluation
+    ev = identified(name, "paper").evaluation.to_dict()
     step = ev["steps"][0]
     assert step["rms_error_um"] / (NOISE_M * 1e6) == pytest.approx(1.0, abs=0.05)
     assert ev["static"]["rms_error_um"] < 0.25  # points are 100-sample means: 0.1 um noise

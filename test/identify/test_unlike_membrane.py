@@ -45,9 +45,9 @@ def test_records_are_classified_and_fitted_with_the_matching_solution(unlike):
     text = "\n".join(res.warnings)
     assert "10.19 Hz is left out" in text
     # the period-doubled records are reproduced by the period-doubled orbit (not the T/2 one)
-    fr = res.evaluation["frequency_response"][0]
+    fr = res.evaluation.to_dict()["frequency_response"][0]
     sine = exp.sines[0]
-    model = res.curves["sines"][0]["model_at_data_m"]
+    model = res.evaluation.sines[0].model_at_data_m
     for f in (19.5, 20.2):
         k = int(np.argmin(np.abs(sine.frequency_Hz - f)))
         assert abs(model[k] - sine.d_rms_m[k]) < 4 * sine.d_rms_std_m[k]

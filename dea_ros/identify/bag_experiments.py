@@ -1,0 +1,328 @@
+"""Experiments from a bag: cut static, step and sine experiments out of a recorded rig session.
+
+Signals: the applied voltage (``sensor_msgs/msg/BatteryState`` -> ``voltage``, or
+``std_msgs/msg/Float64`` -> ``data``) and the displacement (``sensor_msgs/msg/Range`` ->
+``range``, or ``std_msgs/msg/Float64``). Stamped messages use their header stamp (the acquisition
+time), others the bag's log time. Topic names are configurable (:class:`BagTopics`). The bag is
+read with the public API of :mod:`dea_ros.bag` (:class:`~dea_ros.bag.BagReader`).
+
+Segments: a bag recorded by identifier_node carries an MCAP metadata record
+``dea_ros.experiment`` (:data:`EXPERIMENT_METADATA`) with the protocol's schedule (JSON,
+:mod:`dea_ros.identify.protocols`) and its start time. For any other rosbag2 bag, give the same
+information as a YAML file (``segments_file``)::
+
+    membrane: A2          # preset or parameters YAML with the geometry
+    mass_kg: 0.003
+    t0_s: 1700000000.0    # absolute time of the protocol start (s); times below are relative
+    segments:
+      - {kind: static, voltage_V: 0, measure_start_s: 3, measure_end_s: 4}
+      - {kind: step, start_s: 4, end_s: 9}
+      - {kind: sine, frequency_Hz: 9.0, amplitude_V: 2500, measure_start_s: 20, measure_end_s: 23}
+
+Static: mean displacement over the measurement window. Step: voltage (zero-order hold of the
+applied voltage) and displacement at the displacement samples of the segment. Sine: RMS of
+d - d0 over whole periods of the window (eq. 21), d0 = the measured rest position at 0 V
+(static segment at 0 V, else the start of the recording), with the sampled series attached; the
+laser noise (from the static segments) is removed from the mean square and gives each RMS its
+standard uncertainty (plus, for a record whose halves differ by more than 3 sigma, that difference:
+it has not settled). The fit's input is the recorded voltage held from each stamp (the
+amplifier's zero-order hold).
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..bag import BagReader
+from ..errors import BagError, ExperimentError
+from ..model.parameters import load_parameters
+from .experiments import (
+    GEOMETRY_FIELDS,
+    ExperimentSet,
+    SineData,
+    SineSeries,
+    StaticData,
+    StepData,
+    periodic_input_from_record,
+    rms_statistics,
+    third_difference_noise,
+)
+
+__all__ = ["BagTopics", "BagSignals", "read_signals", "experiments_from_bag", "EXPERIMENT_METADATA"]
+
+#: name of the MCAP metadata record written by identifier_node
+EXPERIMENT_METADATA = "dea_ros.experiment"
+
+_VALUE_FIELDS = {
+    "sensor_msgs/msg/BatteryState": "voltage",
+    "sensor_msgs/msg/Range": "range",
+    "std_msgs/msg/Float64": "data",
+    "std_msgs/msg/Float32": "data",
+}
+
+
+@dataclass(frozen=True)
+class BagTopics:
+    """The topics of the applied voltage and of the displacement."""
+
+    voltage: str = "/dea/voltage"
+    displacement: str = "/dea/displacement"
+
+
+@dataclass
+class BagSignals:
+    """Voltage and displacement time series of a bag (s since the epoch, V, m) and its metadata records."""
+
+    voltage_t_s: np.ndarray
+    voltage_V: np.ndarray
+    displacement_t_s: np.ndarray
+    displacement_m: np.ndarray
+    metadata: dict
+
+
+# --------------------------------------------------------------------------- signals
+def _resolve(topics_in_bag: dict, wanted: str, role: str, path) -> str:
+    if wanted in topics_in_bag:
+        return wanted
+    # allow a different namespace: match on the last path element
+    base = wanted.rsplit("/", 1)[-1]
+    matches = [t for t in topics_in_bag if t.rsplit("/", 1)[-1] == base]
+    if len(matches) == 1:
+        return matches[0]
+    raise BagError(
+        f"{path}: no {role} topic '{wanted}' (topics: {sorted(topics_in_bag)}); "
+        f"name it with --{role}-topic"
+    )
+
+
+def _topic_names(info: dict, topics: BagTopics, path) -> dict:
+    """role -> topic name in the bag, each of a supported type and with messages."""
+    names = {}
+    for role, wanted in (("voltage", topics.voltage), ("displacement", topics.displacement)):
+        name = _resolve(info, wanted, role, path)
+        if info[name].type not in _VALUE_FIELDS:
+            raise BagError(
+                f"{path}: topic {name} has type {info[name].type}; the {role} must be one of "
+                f"{sorted(_VALUE_FIELDS)}"
+            )
+        if info[name].message_count == 0:
+            raise BagError(f"{path}: topic {name} ({role}) has no messages")
+        names[role] = name
+    return names
+
+
+def read_signals(path, topics: BagTopics = BagTopics()) -> BagSignals:
+    """Voltage and displacement time series (s since the epoch, V, m) and the metadata records."""
+    with BagReader(path) as bag:
+        info = bag.topics()
+        names = _topic_names(info, topics, path)
+        series = {role: ([], []) for role in names}
+        role_of = {v: k for k, v in names.items()}
+        for topic, log_ns, msg in bag.messages(list(names.values())):
+            role = role_of[topic]
+            value_field = _VALUE_FIELDS[info[topic].type]
+            header = getattr(msg, "header", None)
+            if header is not None:
+                t = header.stamp.sec + header.stamp.nanosec * 1e-9
+            else:
+                t = log_ns * 1e-9
+            value = float(getattr(msg, value_field))
+            if role == "voltage" and hasattr(msg, "present") and not msg.present:
+                value = 0.0 if not math.isfinite(value) else value
+            series[role][0].append(t)
+            series[role][1].append(value)
+        meta = bag.metadata()
+    out = {}
+    for role, (t, v) in series.items():
+        t, v = np.asarray(t), np.asarray(v, float)
+        order = np.argsort(t, kind="stable")
+        out[role] = (t[order], v[order])
+    return BagSignals(out["voltage"][0], out["voltage"][1], out["displacement"][0], out["displacement"][1], meta)
+
+
+def _schedule(signals: BagSignals, segments_file, path):
+    """(information, t0 in s since the epoch, segments) from the segments YAML or the identifier's record."""
+    if segments_file is not None:
+        data = yaml.safe_load(Path(segments_file).read_text())
+        if not isinstance(data, dict) or "segments" not in data or "t0_s" not in data:
+            raise BagError(f"{segments_file}: needs 't0_s' and 'segments' (see dea_ros.identify.bag_experiments)")
+        return data, float(data["t0_s"]), list(data["segments"])
+    record = signals.metadata.get(EXPERIMENT_METADATA)
+    if record is None:
+        raise BagError(
+            f"{path}: no '{EXPERIMENT_METADATA}' metadata (not recorded by identifier_node); "
+            "describe the experiments with a segments YAML (--segments FILE)"
+        )
+    try:
+        segments = json.loads(record["segments_json"])
+        t0 = int(record["t0_ns"]) * 1e-9
+    except (KeyError, ValueError) as exc:
+        raise BagError(f"{path}: metadata '{EXPERIMENT_METADATA}' is malformed ({exc})") from None
+    info = {k: v for k, v in record.items() if k not in ("segments_json",)}
+    return info, t0, segments
+
+
+# --------------------------------------------------------------------------- segments
+class _Timeline:
+    """The signals on the protocol's time line (s from its start t0)."""
+
+    def __init__(self, signals: BagSignals, t0: float, command_rate_hz: float):
+        self.tv, self.uv = signals.voltage_t_s - t0, signals.voltage_V
+        self.td, self.dd = signals.displacement_t_s - t0, signals.displacement_m
+        self.command_lead_s = 2.0 / command_rate_hz
+
+    def window(self, a, b):
+        """Samples in [a, b - guard): identifier_node commands one period ahead, so the next
+        segment's voltage can appear just before the boundary."""
+        k = (self.td >= a) & (self.td < b - max(0.01, self.command_lead_s))
+        return self.td[k], self.dd[k]
+
+    def voltage_at(self, t):
+        """Zero-order hold of the applied voltage at times t (s, relative to t0).
+
+        A change stamped at t_k holds from t_k on. Stamps are epoch seconds, whose float64
+        resolution is ~0.2 us: without the 1 us tolerance a sample taken at the very instant of
+        a change would often get the previous voltage (a one-sample, 1 ms, delay of the step).
+        """
+        idx = np.clip(np.searchsorted(self.tv, t + 1e-6, side="right") - 1, 0, self.tv.size - 1)
+        return self.uv[idx]
+
+
+@dataclass
+class _Cut:
+    """What the segments hold: static points, steps, sine windows and the rest position."""
+
+    static_u: list = field(default_factory=list)
+    static_d: list = field(default_factory=list)
+    static_noise: list = field(default_factory=list)
+    steps: list = field(default_factory=list)
+    #: (record, amplitude V, offset V, held-voltage times, held voltages) per sine segment
+    sines: list = field(default_factory=list)
+    rest_d0: float | None = None
+    rest_n: int = 0
+
+
+def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
+    t, d = line.window(seg["measure_start_s"], seg["measure_end_s"])
+    if t.size < 3:
+        raise BagError(f"{path}: static segment {k} ({seg.get('voltage_V')} V) has {t.size} samples")
+    u = float(np.mean(line.voltage_at(t)))
+    cut.static_u.append(u)
+    cut.static_d.append(float(np.mean(d)))
+    # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
+    sigma = third_difference_noise(d)
+    if sigma is not None:
+        cut.static_noise.append(sigma)
+    if abs(u) < 1.0 and cut.rest_d0 is None:
+        cut.rest_d0 = float(np.mean(d))
+        cut.rest_n = t.size
+
+
+def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
+    f = float(seg["frequency_Hz"])
+    t, d = line.window(seg["measure_start_s"], seg["measure_end_s"])
+    if t.size < 20:
+        raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
+    s = SineSeries(f, t - t[0], line.voltage_at(t), d, source=f"{path} sine {f:g} Hz", voltage_hold="zoh")
+    # the applied voltage is the amplifier's recorded output, each value held from its stamp
+    # until the next: its own time line (not the laser's) carries the hold exactly
+    inside = (line.tv > t[0]) & (line.tv < t[-1])
+    held_t = np.r_[t[0], line.tv[inside]] - t[0]
+    held_u = np.r_[line.voltage_at(t[:1]), line.uv[inside]]
+    cut.sines.append((s, float(seg["amplitude_V"]), float(seg.get("offset_V", 0.0)), held_t, held_u))
+
+
+def _cut_segments(line: _Timeline, segments: list, mass: float, path) -> _Cut:
+    """Every segment of the schedule cut out of the signals (rest segments are skipped)."""
+    cut = _Cut()
+    for k, seg in enumerate(segments):
+        kind = seg.get("kind")
+        if kind == "static":
+            _cut_static(cut, line, seg, k, path)
+        elif kind == "step":
+            t, d = line.window(seg["start_s"], seg["end_s"])
+            if t.size < 20:
+                raise BagError(f"{path}: step segment {k} has {t.size} samples")
+            cut.steps.append(StepData(t - t[0], line.voltage_at(t), d, mass, source=f"{path} step segment {k}"))
+        elif kind == "sine":
+            _cut_sine(cut, line, seg, k, path)
+        elif kind == "rest":
+            continue
+        else:
+            raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
+    if cut.rest_d0 is None:  # the rest position before the first command
+        td, dd = line.td, line.dd
+        cut.rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
+    return cut
+
+
+def _sine_data(cut: _Cut, noise: float | None, mass: float, path, measured_inputs: bool) -> SineData:
+    """The frequency response of the sine windows (eq. 21, module docstring)."""
+    series = cut.sines
+    freqs = np.array([s[0].frequency_Hz for s in series])
+    amps = np.array([s[1] for s in series])
+    # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
+    # from the static segments (a sine record sampled at 500 Hz moves too fast for the third
+    # differences); without static segments the RMS carries no stated uncertainty
+    d0_std = noise / math.sqrt(cut.rest_n) if (noise is not None and cut.rest_n) else 0.0
+    stats = [rms_statistics(s[0], cut.rest_d0, noise, d0_std) for s in series]
+    rms = np.array([v for v, _ in stats])
+    std = np.array([e for _, e in stats]) if all(e is not None for _, e in stats) else None
+    if std is not None:
+        # a record that has not settled (its halves' d_rms differ by > 3 sigma): the difference
+        # is the size of its remaining transient, an uncertainty the noise does not state
+        for k, (s, *_rest) in enumerate(series):
+            change, change_std = s.settling_m(cut.rest_d0, noise)
+            if change_std > 0 and abs(change) > 3.0 * change_std:
+                std[k] = math.hypot(std[k], change)
+    # the membrane received the applied voltage (command timing, zero-order hold, slew limit),
+    # not the nominal sine: fit and evaluate with the measured waveforms
+    inputs = tuple(periodic_input_from_record(ht, hu, s.frequency_Hz, "zoh", source=s.source)
+                   for s, _a, _o, ht, hu in series) if measured_inputs else ()
+    # without offset the identifier applies |U sin| (a unipolar amplifier; protocols._sine)
+    unipolar = all(o == 0.0 and np.min(s.voltage_V) >= 0.0 for s, _a, o, _t, _u in series)
+    return SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, cut.rest_d0),
+                    series=tuple(s[0] for s in series), source=f"{path} sine segments", inputs=inputs,
+                    d_rms_std_m=std, waveform="abs_sine" if unipolar else "sine")
+
+
+def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=None, membrane=None,
+                         measured_inputs: bool = True) -> ExperimentSet:
+    """An :class:`~dea_ros.identify.experiments.ExperimentSet` cut from a bag.
+
+    ``measured_inputs``: the sine experiments carry the applied voltage of each window as a
+    periodic input (:meth:`SineSeries.measured_input`), used by the fit instead of the nominal sine.
+    """
+    signals = read_signals(path, topics)
+    info, t0, segments = _schedule(signals, segments_file, path)
+    if str(info.get("aborted", "false")).lower() == "true":
+        completed = int(info.get("segments_completed", len(segments)))
+        segments = segments[:completed]
+    membrane_ref = membrane or info.get("membrane", "A2")
+    base = load_parameters(membrane_ref)
+    mass = float(info.get("mass_kg", base.mass_kg))
+    if signals.displacement_t_s.size < 10:
+        raise BagError(f"{path}: only {signals.displacement_t_s.size} displacement samples")
+    line = _Timeline(signals, t0, float(info.get("command_rate_hz", 500.0)))
+    cut = _cut_segments(line, segments, mass, path)
+    # the laser noise, from the static segments (third differences at a constant voltage)
+    noise = float(np.sqrt(np.mean(np.square(cut.static_noise)))) if cut.static_noise else None
+    noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
+    static = [StaticData(np.full(len(cut.static_u), mass), np.array(cut.static_u), np.array(cut.static_d),
+                         source=f"{path} static segments")] if cut.static_u else []
+    sines = [_sine_data(cut, noise, mass, path, measured_inputs)] if cut.sines else []
+    geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
+    try:
+        return ExperimentSet(
+            membrane=str(info.get("membrane_name", base.name)), geometry=geometry, mass_kg=mass,
+            static=static, steps=cut.steps, sines=sines, base_parameters=base, base_reference=str(membrane_ref),
+            sensor_noise_m=noise,
+            folder=Path(path),
+        )
+    except ExperimentError as exc:
+        raise BagError(f"{path}: {exc}") from None

@@ -1,0 +1,169 @@
+"""What every sine record shows and what it is fitted with: the classification of the records.
+
+Each sine record is classified twice: what the record shows from its samples (periodic at T/2,
+period-doubled, quasi-periodic, not settled; :meth:`~dea_ros.identify.experiments.SineSeries.classify`)
+and what the model at the current parameters realises there
+(:func:`~dea_ros.solvers.continuation.frequency_sweep`: the branch a slow upward sweep is on, the
+period-doubled branch in a period-doubling band, quasi-periodic in a torus band; with coexisting
+responses the one nearest the measured RMS). Each record is then fitted with the matching periodic
+solution (the T/2 orbit or a period-doubled one) or left out, with the reason.
+
+:func:`classify_records` returns one dict per record (serialised in result.json without ``guess``);
+:func:`fitted_points` turns the fitted ones into the frequency points of the joint refinement.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.parameters import MembraneParameters
+from ..solvers.continuation import PRIMARY, frequency_sweep
+from ..solvers.inputs import SinePeriodic
+from .experiments import ExperimentSet
+from .frequency_points import FrequencyPoint
+
+__all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "classification_kinds",
+           "sweep_for"]
+
+
+def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
+    """The continuation sweep of the model at ``amplitude_V`` over ``freqs`` (Hz; sorted, unique)."""
+    return frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), np.unique(np.asarray(freqs, float)),
+                           n_harmonics=n_harmonics, realised=realised)
+
+
+def branch_kind(name: str) -> str:
+    """The response kind of a continuation branch: the primary T/2 orbit or a period-doubled one."""
+    return "T/2 orbit" if name == PRIMARY else "period-doubled (T)"
+
+
+def record_kinds(experiments: ExperimentSet, noise_m: float | None) -> dict:
+    """What the sampled records show from the data alone, before any fit: (source, f rounded) -> kind."""
+    kinds = {}
+    for sine in experiments.sines:
+        for ser in sine.series:
+            kinds[(sine.source, round(ser.frequency_Hz, 9))] = ser.classify(noise_m)["kind"]
+    return kinds
+
+
+def _candidates(sweep, f: float) -> list:
+    """(branch name, SweepPoint) of every periodic solution at f."""
+    return [(b.name, p) for b in sweep.branches for p in b.points if abs(p.frequency_Hz - f) <= 1e-9 * max(f, 1.0)]
+
+
+def _choose(data_kind, model_kind, cands: list, stable: list, meas: float, f: float) -> tuple:
+    """(branch name, SweepPoint) the record is fitted with, or None, and the reason when None."""
+    def pick(names, pool):
+        cand = [(n, pt) for n, pt in pool if n in names or (names == "T" and n != PRIMARY)]
+        return min(cand, key=lambda c: abs(c[1].d_rms_m - meas)) if cand else None
+
+    want = data_kind or model_kind
+    chosen, reason = None, ""
+    if want == "quasi-periodic":
+        reason = ("the record is quasi-periodic (no period in its samples)" if data_kind else
+                  "the model has no stable periodic response there (quasi-periodic: a torus band)")
+    elif want == "period-doubled":
+        chosen = pick("T", stable) or pick("T", cands)
+        if chosen is None:
+            reason = ("the record is period-doubled but the model has no period-doubled orbit at "
+                      f"{f:g} Hz with the current parameters")
+    elif want in ("periodic", "coexisting"):
+        pool = stable or cands
+        if data_kind == "periodic":
+            chosen = pick(PRIMARY, pool) or pick(PRIMARY, cands)
+        else:
+            chosen = min(pool, key=lambda c: abs(c[1].d_rms_m - meas)) if pool else None
+        if chosen is None:
+            reason = "no periodic solution of the model there"
+    else:
+        reason = "the model response could not be computed"
+    return chosen, reason
+
+
+def _mark_fitted(entry: dict, chosen: tuple, stable: list) -> None:
+    """``entry`` fitted on the branch ``chosen``, with notes where data and model disagree or coexist."""
+    name, pt = chosen
+    data_kind, model_kind, meas = entry["data_kind"], entry["model_kind"], entry["measured_rms_m"]
+    entry["used"] = "periodic" if name == PRIMARY else "period-doubled"
+    entry["branch"] = name
+    entry["guess"] = pt.solution.state
+    if data_kind and model_kind and data_kind != model_kind and model_kind != "coexisting":
+        entry["note"] = (f"the data show a {data_kind} response, the model at these parameters "
+                         f"a {model_kind} one; fitted as {entry['used']}")
+    if len(stable) > 1:
+        # several stable responses: say which the data are on and what else the model has
+        entry["coexisting"] = [{"branch": n, "kind": branch_kind(n), "d_rms_m": float(q.d_rms_m),
+                                "fitted": n == name} for n, q in stable]
+        others = ", ".join(f"{branch_kind(n)} {q.d_rms_m * 1e6:.4g} um" for n, q in stable
+                           if n != name)
+        entry["note"] = (f"coexisting stable responses in the model: {branch_kind(name)} "
+                         f"{pt.d_rms_m * 1e6:.4g} um (fitted: the record, {meas * 1e6:.4g} um"
+                         + (f", {data_kind}" if data_kind else "") + f", is on it) and {others}"
+                         " (which one a measurement sees depends on the history)")
+
+
+def _classify_record(sine, k: int, amplitude_V: float, sweep, responses: dict, series: dict, noise_m) -> dict:
+    """The classification entry of record ``k`` of ``sine`` (see :func:`classify_records`)."""
+    f = float(sine.frequency_Hz[k])
+    meas = float(sine.d_rms_m[k])
+    ser = series.get(round(f, 9))
+    data = ser.classify(noise_m) if ser is not None else None
+    data_kind = data["kind"] if data else None
+    resp = responses.get(round(f, 9))
+    model_kind = resp.kind if resp is not None else None
+    cands = _candidates(sweep, f)
+    stable = [(n, pt) for n, pt in cands if pt.stable]
+    entry = {"frequency_Hz": f, "amplitude_V": float(amplitude_V), "source": sine.source, "index": int(k),
+             "measured_rms_m": meas, "data_kind": data_kind, "model_kind": model_kind,
+             "model_rms_m": resp.d_rms_m if resp is not None else None}
+    if data:
+        entry["data_test"] = {kk: v for kk, v in data.items() if kk != "kind"}
+    chosen, reason = _choose(data_kind, model_kind, cands, stable, meas, f)
+    if chosen is not None:
+        _mark_fitted(entry, chosen, stable)
+    else:
+        entry["used"] = "left out"
+        entry["reason"] = reason
+    return entry
+
+
+def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_harmonics: int = 8,
+                     noise_m: float | None = None) -> list:
+    """What every sine record shows and what it is fitted with (module docstring).
+
+    One dict per record: frequency_Hz, amplitude_V, source, measured_rms_m, ``data_kind`` (from the
+    sampled record, None without one), ``model_kind`` (the realised response of the model),
+    ``used`` ("periodic", "period-doubled" or "left out"), ``reason``, and ``guess`` (a state on
+    the branch to fit; not serialised).
+    """
+    out = []
+    for sine in experiments.sines:
+        p = params.replace(mass_kg=sine.mass_kg)
+        series_by_f = {round(s.frequency_Hz, 9): s for s in sine.series}
+        for a in np.unique(sine.amplitude_V):
+            sel = np.nonzero(sine.amplitude_V == a)[0]
+            # the kinds only: no integration of quasi-periodic responses here
+            sweep = sweep_for(p, float(a), sine.frequency_Hz[sel], n_harmonics, realised=False)
+            by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
+            for k in sel:
+                out.append(_classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m))
+    return out
+
+
+def fitted_points(classification: list, experiments: ExperimentSet) -> list:
+    """FrequencyPoints of the classified records that are fitted (with their kind and seed)."""
+    pts = []
+    for c in classification:
+        if c["used"] == "left out":
+            continue
+        sine = [s for s in experiments.sines if s.source == c["source"]][0]
+        k = c["index"]
+        pts.append(FrequencyPoint(
+            c["frequency_Hz"], c["amplitude_V"], c["measured_rms_m"], sine.mass_kg, sine.source,
+            None if sine.d_rms_std_m is None else float(sine.d_rms_std_m[k]),
+            sine.inputs[k] if sine.inputs else None, kind=c["used"], guess=c.get("guess")))
+    return sorted(pts, key=lambda p: p.frequency_Hz)
+
+
+def classification_kinds(classification: list) -> list:
+    """(frequency, how fitted, branch) of every record: what a change of the classification compares."""
+    return [(round(c["frequency_Hz"], 9), c["used"], c.get("branch")) for c in classification]

@@ -1,0 +1,149 @@
+"""The outcome of an identification: fitted parameters, the fits, the evaluation, warnings and timings.
+
+:class:`IdentificationResult` is what :func:`~dea_ros.identify.pipeline.identify` returns; the
+report (params.yaml, report.md, the figures) and the CLI's JSON (:meth:`IdentificationResult.to_dict`,
+result.json) are views of it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model.parameters import MembraneParameters
+from .dynamic_fit import DynamicFitResult
+from .evaluation import Evaluation
+from .experiments import ExperimentSet
+from .joint_fit import JointFitResult
+from .jsonable import jsonable
+from .metrics import linear_combination_ci
+from .static_fit import StaticFitResult, stress_combinations
+
+__all__ = ["IdentificationResult"]
+
+
+@dataclass
+class IdentificationResult:
+    """Fitted parameters, the fits, the evaluation against the data, warnings and timings."""
+
+    experiments: ExperimentSet
+    parameters: MembraneParameters
+    static: StaticFitResult | None
+    dynamic: DynamicFitResult | None
+    #: the fitted model against every experiment (empty when the identification did not evaluate)
+    evaluation: Evaluation
+    timings_s: dict
+    warnings: list = field(default_factory=list)
+    options: dict = field(default_factory=dict)
+    joint: JointFitResult | None = None
+    classification: list = field(default_factory=list)   # one entry per sine record (see classify_records)
+    #: sigma_h''(1): True identified (written), False not identified (base value written), None not fitted
+    curvature_identified: bool | None = None
+    curvature_written_Pa: float | None = None
+    curvature_status: str = "not fitted"   # "identified", "poorly determined", "not identified", "not fitted"
+    #: confidence bands of the frequency response (:class:`~dea_ros.identify.uncertainty.ResponseBand`),
+    #: one per sine data set and amplitude, when asked for (``uncertainty_samples``)
+    uncertainty: list = field(default_factory=list)
+
+    @property
+    def statistics(self):
+        """The statistics of the final parameters: the joint refinement's, else the dynamic fit's."""
+        if self.joint is not None:
+            return self.joint.statistics
+        return self.dynamic.statistics if self.dynamic is not None else None
+
+    def identification_metadata(self) -> dict:
+        """What was identified and how (written next to the parameters in params.yaml).
+
+        The hyperelastic stress is given at lambda_r = 1 with derivatives w.r.t. lambda_r as eq. 10 is
+        written (the fits use s = lambda_r^2: d/dlambda = 2 d/ds, d2/dlambda2 = 2 d/ds + 4 d2/ds2).
+        """
+        c = stress_combinations(self.parameters.beta_Pa, self.parameters.gamma_Pa)
+        stats = self.statistics
+        s_stats = stats if (stats is not None and "sigma_h(1)_Pa" in stats.names) else (
+            self.static.statistics if self.static is not None else None)
+
+        def ci(st, weights):
+            v = linear_combination_ci(st, weights)
+            return None if v is None or not np.isfinite(v[3]) else [float(v[1]), float(v[2])]
+
+        meta = {
+            "method": "joint refinement (statistical weights)" if self.joint is not None else
+                      f"two-stage (paper), weights {self.options.get('weights')}",
+            "stress_derivatives": "w.r.t. lambda_r at lambda_r = 1 (eq. 10)",
+            "sigma_h(1)_Pa": float(c[0]),
+            "sigma_h(1)_Pa_ci95": ci(s_stats, {"sigma_h(1)_Pa": 1.0}),
+            "dsigma_h_dlambda(1)_Pa": float(2.0 * c[1]),
+            "dsigma_h_dlambda(1)_Pa_ci95": ci(s_stats, {"sigma_h'(1)_Pa": 2.0}),
+        }
+        if self.curvature_identified:
+            meta["d2sigma_h_dlambda2(1)_Pa"] = float(2.0 * c[1] + 4.0 * c[2])
+            meta["d2sigma_h_dlambda2(1)_Pa_ci95"] = ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0})
+            meta["d2sigma_h_dlambda2(1)_status"] = self.curvature_status
+        else:
+            meta["d2sigma_h_dlambda2(1)_Pa"] = "not identified"
+            meta["d2sigma_h_dlambda2(1)_written_Pa"] = float(2.0 * c[1] + 4.0 * c[2])
+            meta["d2sigma_h_dlambda2(1)_note"] = (
+                "not determined by the data: beta/gamma carry the base value (base parameters file, or the "
+                "representation of eqs. 8-9 without one), not a fitted one")
+        for name in ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s"):
+            st = stats if (stats is not None and name in stats.names) else (
+                self.static.statistics if (self.static is not None and name == "eps_r") else None)
+            if st is not None and name in st.names:
+                i = st.names.index(name)
+                if np.isfinite(st.relative_ci[i]):
+                    meta[f"{name}_ci95"] = [float(st.ci_low[i]), float(st.ci_high[i])]
+        left_out = [c_["frequency_Hz"] for c_ in self.classification if c_.get("used") == "left out"]
+        if left_out:
+            meta["left_out_frequencies_Hz"] = [float(f) for f in left_out]
+        pd = [c_["frequency_Hz"] for c_ in self.classification if c_.get("used") == "period-doubled"]
+        if pd:
+            meta["period_doubled_fits_Hz"] = [float(f) for f in pd]
+        return meta
+
+    def to_dict(self) -> dict:
+        """JSON-friendly summary: parameters, fits, metrics, statistics, warnings, timings."""
+        out = {
+            "membrane": self.parameters.name,
+            "parameters": self.parameters.to_dict(),
+            "options": dict(self.options),
+            "metrics": self.evaluation.to_dict(),
+            "timings_s": {k: float(v) for k, v in self.timings_s.items()},
+            "warnings": list(self.warnings),
+        }
+        if self.static is not None:
+            st = self.static
+            out["static_fit"] = {
+                "method": st.method,
+                "representation": st.representation,
+                "combinations_Pa": {"sigma_h(1)": float(st.combinations_Pa[0]),
+                                    "sigma_h'(1)": float(st.combinations_Pa[1]),
+                                    "sigma_h''(1)": float(st.combinations_Pa[2])},
+                "statistics": st.statistics.as_dict(),
+                "evaluations": st.n_evaluations,
+                "errors_um": st.errors_um,
+            }
+        out["identification"] = jsonable(self.identification_metadata())
+        out["classification"] = jsonable([{k: v for k, v in c.items() if k != "guess"}
+                                          for c in self.classification])
+        if self.joint is not None:
+            out["joint_fit"] = jsonable(self.joint.as_dict())
+        if self.uncertainty:
+            out["uncertainty"] = jsonable([b.to_dict() for b in self.uncertainty])
+        if self.dynamic is not None:
+            dy = self.dynamic
+            out["dynamic_fit"] = {
+                "method": dy.method,
+                "frequency_method": dy.frequency_method,
+                "fit_frequencies_Hz": [float(f) for f in dy.fit_frequencies_Hz],
+                "weights": jsonable(dy.weights[0] if dy.weights[0] != "custom" else dy.weights),
+                "curvature_fitted": dy.curvature_fitted,
+                "cost_eq22": dy.cost,
+                "step_cost": dy.step_cost,
+                "frequency_cost": dy.frequency_cost,
+                "evaluations": dy.n_evaluations,
+                "jacobians": dy.n_jacobians,
+                "statistics": dy.statistics.as_dict() if dy.statistics else None,
+                "initial_guess": jsonable({k: v for k, v in dy.initial.items()}),
+            }
+        return out
