@@ -352,7 +352,7 @@ def mock_rig(args, params_file, levels, mid):
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
     from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS
-    from dea_ros.rig import RigProcesses  # the demo's process runner
+    from dea_ros.cli.rig import RigProcesses
 
     import socket
 

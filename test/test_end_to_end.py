@@ -41,7 +41,7 @@ def test_demo_writes_bag_parameters_and_report(demo_run):
         assert Path(summary[key]).is_file()
     assert len(summary["figures"]) >= 3 and all(Path(f).stat().st_size > 10_000 for f in summary["figures"])
     counts = summary["messages"]
-    from dea_ros.protocols import load_protocol
+    from dea_ros.identify.protocols import load_protocol
 
     duration = load_protocol("test").duration_s()
     # demo defaults: laser at 500 Hz, amplifier and commands at 250 Hz (simulated time), no gaps
@@ -91,8 +91,8 @@ def test_sine_commands_are_applied_one_update_later_without_jitter(demo_run):
     10-15 % of the updates a step early, which excited the resonance and made the 15/20 Hz records
     irregular)."""
     import json as json_
-    from dea_ros.bag.extract import EXPERIMENT_METADATA, read_signals
-    from dea_ros.protocols import load_protocol
+    from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, read_signals
+    from dea_ros.identify.protocols import load_protocol
 
     signals = read_signals(demo_run[0] / "bag")
     record = signals.metadata[EXPERIMENT_METADATA]

@@ -1,27 +1,19 @@
 """`dea-ros rig check`: what is connected vs what the configuration expects, before any voltage.
 
-The DAQ is the fake uldaq with the real boards' ranges (test/hardware/fake_uldaq.py); the laser is
+The DAQ is the fake uldaq with the real boards' ranges (test/fakes/fake_uldaq.py); the laser is
 the ILD1320 emulator on a pseudo-terminal, left in a previous user's state.
 """
-import importlib.util
 import json
 import sys
-from pathlib import Path
 
 import pytest
 
 from dea_ros.cli import main
-from dea_ros.hardware.ild1320_emulator import ILD1320Emulator
+from dea_ros.sim.ild1320_emulator import ILD1320Emulator
+from fakes import load_fake
 
 
-def _load_fake():
-    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).parent / "hardware" / "fake_uldaq.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-fake = _load_fake()
+fake = load_fake("fake_uldaq")
 
 
 @pytest.fixture

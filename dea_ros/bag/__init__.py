@@ -78,7 +78,7 @@ Bags (rosbag2 directories):
 * ``reader``: :class:`BagReader` (summary-based for complete files, scan-based for truncated ones).
 * ``recover``: :func:`recover_bag` and its :class:`RecoveryReport`.
 * ``convert``: :func:`convert_bag` (Humble <-> Jazzy format).
-* ``commands``: the ``dea-ros bag info|recover|convert`` command line.
+* ``playback``: a bag's messages on their original schedule (for ``dea-ros replay``).
 
 What a bag stores besides messages:
 
@@ -100,9 +100,9 @@ MCAP files (no ROS, no rosbag2 conventions):
 * ``mcap_records``: the record format: constants, parsing of one record and of a chunk's content.
 * ``mcap_compression``: chunk compression (zstd, lz4, none).
 
-TRANSITIONAL re-exports (removed in issue 24 phase 2): ``mcap_io`` (now the ``mcap_*``
-modules) and ``errors`` (now :mod:`dea_ros.errors`). ``extract`` (bag -> experiments) belongs to
-:mod:`dea_ros.identify`.
+The bag errors and warnings are in :mod:`dea_ros.errors`; turning a bag's signals into
+experiments is :mod:`dea_ros.identify.bag_experiments`; the ``dea-ros bag`` command is
+:mod:`dea_ros.cli.bag`.
 """
 from __future__ import annotations
 
@@ -110,6 +110,7 @@ from ..errors import BagError, BagTruncatedWarning, BagWarning
 from .convert import convert_bag
 from .definitions import MessageDefinition, MessageDefinitionStore, default_search_prefixes
 from .metadata import default_rosbag2_format, resolve_rosbag2_format
+from .playback import BagPlayback, open_playback, playback_schedule
 from .qos import (
     INFINITE_DURATION,
     QosDuration,
@@ -127,6 +128,9 @@ from .writer import DEFAULT_MIN_FREE_BYTES, BagWriter, check_writable
 
 __all__ = [
     "BagWriter",
+    "BagPlayback",
+    "open_playback",
+    "playback_schedule",
     "BagReader",
     "BagMessage",
     "RawBagMessage",

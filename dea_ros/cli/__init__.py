@@ -5,11 +5,14 @@
 * :mod:`.common`: what every command shares (membrane options, input-file checks, JSON, plots);
 * :mod:`.model`: ``equilibrium`` (eq. 20) and ``simulate`` (forward integration);
 * :mod:`.sweep`: ``sweep`` (frequency response by harmonic balance);
+* :mod:`.identify`: ``synth`` and ``identify`` (one input or many, on the study's engines);
+* :mod:`.study`: ``study`` (design studies) and the engine options shared with ``identify``;
+* :mod:`.bag`: ``bag info|recover|convert``;
+* :mod:`.replay`: ``replay`` (loads the ROS node when it runs: the rest works without ROS 2);
 * :mod:`.rig`: ``rig up`` / ``rig demo`` (the rig's nodes as processes, as ``ros2 run`` starts them);
 * :mod:`.rig_check`: ``rig check`` (configuration vs connected devices).
 
-Each command module has ``register(subparsers)``; a command loads the core modules it needs when
-it runs, so ``dea-ros --help`` stays quick.
+Each command module has ``register(subparsers)``.
 """
 from .program import COMMAND_MODULES, build_parser, main
 

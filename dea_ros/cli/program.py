@@ -23,8 +23,8 @@ __all__ = ["main", "build_parser", "COMMAND_MODULES"]
 
 #: the modules that add command groups to ``dea-ros`` (each has ``register(subparsers)``); a group
 #: whose module cannot be imported here (e.g. ``replay`` without rclpy) is left out of the parser
-COMMAND_MODULES = ("dea_ros.cli.model", "dea_ros.cli.sweep", "dea_ros.identify.commands", "dea_ros.study.commands",
-                   "dea_ros.bag.commands", "dea_ros.replay", "dea_ros.cli.rig")
+COMMAND_MODULES = ("dea_ros.cli.model", "dea_ros.cli.sweep", "dea_ros.cli.identify", "dea_ros.cli.study",
+                   "dea_ros.cli.bag", "dea_ros.cli.replay", "dea_ros.cli.rig")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -3,10 +3,10 @@
 Runs before any voltage is applied and writes nothing to the hardware: it reads the node
 configurations (the installed ``config/amplifier.yaml`` and ``config/laser_sensor.yaml`` by
 default, or the files a lab uses with ``--params-file``), validates them with the same code the
-nodes run at configure (:func:`~dea_ros.hardware.amplifier_backends.amplifier_config_from_parameters`),
-asks the DAQ what it offers (:func:`~dea_ros.hardware.amplifier_backends.query_uldaq_board`, uldaq
+nodes run at configure (:func:`~dea_ros.hardware.amplifier.config.amplifier_config_from_parameters`),
+asks the DAQ what it offers (:func:`~dea_ros.hardware.amplifier.uldaq.query_uldaq_board`, uldaq
 backend only) and the laser what it is and how it is set
-(:func:`~dea_ros.hardware.ild1320_sensor.describe_ild1320`, ild1320 backend only), and compares.
+(:func:`~dea_ros.hardware.laser.ild1320_serial.describe_ild1320`, ild1320 backend only), and compares.
 
 Exit codes: 0 all consistent, 1 a mismatch or a device that cannot be reached, 2 a configuration
 that is invalid in itself (the message names the parameter and the likely slip).
@@ -72,8 +72,9 @@ def node_parameters_from_file(path: Path, node_name: str) -> Dict[str, Any]:
 
 
 def _check_amplifier(values: Mapping[str, Any], query_board: Callable[..., Any]):
-    from ..hardware.amplifier_backends import (
-        AmplifierBackendError, amplifier_config_from_parameters, describe_amplifier_rig)
+    from ..errors import AmplifierBackendError
+    from ..hardware.amplifier.config import amplifier_config_from_parameters
+    from ..hardware.amplifier.rig_description import describe_amplifier_rig
 
     config = amplifier_config_from_parameters(values)  # ValueError: invalid in itself -> exit 2
     board = None
@@ -91,7 +92,7 @@ def _check_amplifier(values: Mapping[str, Any], query_board: Callable[..., Any])
 
 
 def _check_laser(values: Mapping[str, Any], describe_sensor: Callable[..., Any]):
-    from ..hardware.ild1320_protocol import LaserSensorExpectation
+    from ..hardware.laser.ild1320_protocol import LaserSensorExpectation
     from ..hardware.laser import SensorError
 
     backend = str(values.get("backend", "ild1320"))
@@ -118,9 +119,9 @@ def check_rig(amplifier_values: Optional[Mapping[str, Any]], laser_values: Optio
     invalid in itself.
     """
     if query_board is None:
-        from ..hardware.amplifier_backends import query_uldaq_board as query_board
+        from ..hardware.amplifier.uldaq import query_uldaq_board as query_board
     if describe_sensor is None:
-        from ..hardware.ild1320_sensor import describe_ild1320 as describe_sensor
+        from ..hardware.laser.ild1320_serial import describe_ild1320 as describe_sensor
     report = RigCheckReport()
     if amplifier_values is not None:
         lines, mismatches = _check_amplifier(amplifier_values, query_board)

@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..errors import SafetyConfigError
-from ..hardware.amplifier_safety import membrane_voltage_limit_V
+from ..hardware.amplifier.limits import membrane_voltage_limit_V
 from ..model import MembraneParameters
 from .feedback import FeedbackGains, PIDOnU2, design_gains
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError

@@ -22,6 +22,5 @@ adapters around them (as nmea_navsat_driver's parser.py and its node)::
 
 The simulated devices (the amplifier's output stage, the ILD1320 emulator, the rig's physics) are
 in :mod:`dea_ros.sim`; the test doubles that inject faults are in test/fakes/, out of the product.
-Modules directly in this folder other than ``__init__`` are TRANSITIONAL re-exports of the old paths.
 """
 __all__: list[str] = []

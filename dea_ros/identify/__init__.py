@@ -28,7 +28,7 @@ One concept per module; imports point down the list (a module uses only those ab
     synth               synthetic experiment sets of a known membrane
     from_bag            a bag -> experiments -> identify -> params.yaml and report (identifier_node)
     many                many inputs on an engine (any object with map_unordered), a summary table
-    commands            the ``synth`` and ``identify`` commands of the CLI (argparse; uses study's engine)
+
 """
 from ..errors import (
     DynamicFitError,

@@ -14,7 +14,7 @@ callback refuses any change (``use_sim_time`` included) with the reason. The mem
 read once, at construction; the voltage ceiling derived then (``enforced_max_voltage_V``, a
 read-only parameter reporting what is enforced) is the only one a later configure uses.
 
-Every output goes through :class:`dea_ros.hardware.amplifier_safety.SafeVoltageController`:
+Every output goes through :class:`dea_ros.hardware.amplifier.safety.SafeVoltageController`:
 never above the ceiling (margin x breakdown field x thickness of the membrane, or the lower
 ``max_voltage_V``), never faster than ``slew_rate_V_per_s``, a watchdog ramps to 0 V when
 commands stop for ``watchdog_timeout_s``, and NaN, inf, negative and out-of-range commands are
@@ -24,7 +24,7 @@ Time: slew, ramp and watchdog run on ``time.monotonic`` (the update timer is a s
 no ROS time change can stall or jump them. Simulated time (``use_sim_time``, set at start-up)
 is accepted only with the ``mock`` backend; then the update follows the simulated clock (the
 mock rig runs lockstep with it), each update advancing the controller by at most one update
-period (:class:`~dea_ros.hardware.amplifier_safety.ControlClock`), and a wall-clock backstop
+period (:class:`~dea_ros.hardware.amplifier.safety.ControlClock`), and a wall-clock backstop
 ramps to 0 V when the simulated clock stalls for ``SIM_CLOCK_STALL_S``. In simulated time the node
 also acknowledges every ``voltage_cmd`` it receives on ``~/command_received`` (std_msgs/Header
 stamped with the simulated time of receipt; nothing else): with that topic in the mock rig's
@@ -52,23 +52,15 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Header
 
-from ..hardware.amplifier_backends import (
-    AMPLIFIER_PARAMETERS,
-    AmplifierBackendError,
-    AmplifierRigExpectation,
-    InProcessAmplifierBackend,
-    MockAmplifierBackend,
-    UldaqAmplifierBackend,
-    amplifier_config_from_parameters,
-    describe_amplifier_rig,
-)
-from ..hardware.amplifier_safety import (
-    ControlClock,
-    SafeVoltageController,
-    SafetyConfigError,
-    SafetyLimits,
-    drive_to_zero,
-)
+from ..errors import AmplifierBackendError
+from ..hardware.amplifier.config import AMPLIFIER_PARAMETERS, amplifier_config_from_parameters
+from ..hardware.amplifier.inprocess import InProcessAmplifierBackend
+from ..hardware.amplifier.rig_description import AmplifierRigExpectation, describe_amplifier_rig
+from ..hardware.amplifier.udp import MockAmplifierBackend
+from ..hardware.amplifier.uldaq import UldaqAmplifierBackend
+from ..errors import SafetyConfigError
+from ..hardware.amplifier.limits import SafetyLimits
+from ..hardware.amplifier.safety import ControlClock, SafeVoltageController, drive_to_zero
 from ..model import ParameterError
 from .common import (
     COMMAND_QOS,

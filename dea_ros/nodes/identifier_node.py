@@ -3,7 +3,7 @@
 1. Checks before any high voltage: the bag directory is writable and the disk has
    ``min_free_mb``; the protocol's peak voltage is within ``max_voltage_V`` (if set).
 2. Waits (``wait_for_rig_s``) until the amplifier reports an enabled output and displacement
-   flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.protocols`) at
+   flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.identify.protocols`) at
    ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
    and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
 3. Records every rig topic (``voltage_cmd``, ``voltage``, ``displacement``,
@@ -50,9 +50,9 @@ from std_srvs.srv import Trigger
 
 from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
                    resolve_rosbag2_format)
-from ..bag.extract import EXPERIMENT_METADATA
+from ..identify.bag_experiments import EXPERIMENT_METADATA
 from ..identify.from_bag import identify_bag
-from ..protocols import ProtocolError, load_protocol
+from ..identify.protocols import ProtocolError, load_protocol
 from .common import (
     COMMAND_QOS,
     LATCHED_QOS,

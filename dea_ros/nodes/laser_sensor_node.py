@@ -2,11 +2,11 @@
 
 Reads the binary measurement stream in batches (``poll_period_s``), stamps every sample with its
 acquisition time (reconstructed from the measuring rate, see
-:class:`dea_ros.hardware.ild1320_sensor.SampleClock`) and publishes it on ``displacement``
+:class:`dea_ros.hardware.laser.sample_clock.SampleClock`) and publishes it on ``displacement``
 (sensor_msgs/Range, m, sensor-data QoS).
 
 On every connect the sensor is checked against the parameters and put into a known state
-(:meth:`dea_ros.hardware.ild1320_sensor.ILD1320Sensor.open`): another model, a measuring range
+(:meth:`dea_ros.hardware.laser.ild1320_serial.ILD1320Sensor.open`): another model, a measuring range
 other than ``measuring_range_m`` or a rate that is not an ILD1320 rate is refused with the
 mismatch in the log and in the diagnostics (nothing is published; the node retries slowly in case
 the right head is plugged in); mastering, additional outputs and the hold mode a previous user may
@@ -14,7 +14,7 @@ have left are reset and read back. A bad reply never ends the node: it is an err
 the node reconnects with a back-off.
 
 Every sample passes the plausibility checks of
-:class:`dea_ros.hardware.ild1320_protocol.PlausibilityFilter` (inside the measuring range, not
+:class:`dea_ros.hardware.laser.plausibility.PlausibilityFilter` (inside the measuring range, not
 right after a framing error, within ``max_speed_m_per_s`` of the previous sample). Discarded samples
 and the sensor's error values (no target, too close, ...) are not published; ``/diagnostics``
 counts them per reason (``errors_<reason>``) next to the backend's byte/frame counters
@@ -38,14 +38,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import Range
 from std_srvs.srv import Trigger
 
-from ..hardware.ild1320_emulator import MockDisplacementSensor
-from ..hardware.ild1320_protocol import (
-    ALLOWED_MEASURING_RATES_HZ,
-    DEFAULT_JUMP_TOLERANCE_M,
-    DEFAULT_MAX_SPEED_M_PER_S,
-    validate_measuring_rate_hz,
-)
-from ..hardware.ild1320_sensor import ILD1320Sensor
+from ..sim.mock_sensor import MockDisplacementSensor
+from ..hardware.laser.ild1320_protocol import ALLOWED_MEASURING_RATES_HZ, validate_measuring_rate_hz
+from ..hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
+from ..hardware.laser.ild1320_serial import ILD1320Sensor
 from ..hardware.laser import SensorConfigurationError, SensorDisconnected, SensorError
 from .common import (
     SENSOR_QOS,

@@ -5,24 +5,20 @@ Messages are republished as recorded (raw CDR, no decoding) with the recorded of
 (``--topics``), from ``--start-offset`` seconds into the bag. With ``--clock`` the bag time is
 published on ``/clock`` so that nodes with ``use_sim_time`` (e.g. model_node) run on the log's time.
 
-The bag side is not ROS: :func:`open_playback` checks the bag and the topics and finds the first
-log time, :func:`playback_schedule` yields each message with the time it is due (pauses longer
-than ``--max-gap`` cut out). This module only creates the node, its publishers and their QoS, and
+The bag side is not ROS (:mod:`dea_ros.bag.playback`): ``open_playback`` checks the bag and the
+topics and finds the first log time, ``playback_schedule`` yields each message with the time it is
+due (pauses longer than ``--max-gap`` cut out). This module only creates the node, its publishers and their QoS, and
 sleeps until each message is due. rclpy is imported when a replay starts (an optional dependency
 of the command line: without ROS 2 the command says how to get it).
 """
 from __future__ import annotations
 
 import importlib
-import math
 import time
-from dataclasses import dataclass
-from typing import Callable, Iterator
 
-from ..bag import BagReader
+from ..bag.playback import BagPlayback, open_playback, playback_schedule
 
-__all__ = ["register", "replay", "cmd_replay", "message_class", "playback_qos", "BagPlayback", "open_playback",
-           "playback_schedule"]
+__all__ = ["replay", "message_class", "playback_qos"]
 
 
 def message_class(type_name: str):
@@ -52,55 +48,6 @@ def playback_qos(profiles):
         reliability=ReliabilityPolicy.BEST_EFFORT if p.reliability == "best_effort" else ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if p.durability == "transient_local" else DurabilityPolicy.VOLATILE,
     )
-
-
-# ---------------------------------------------------------------------------- the bag's schedule (no ROS)
-@dataclass(frozen=True)
-class BagPlayback:
-    """What a replay plays: the bag, its topics (name -> topic info), the topics replayed and the
-    first real log time, ns."""
-
-    path: object
-    topics: dict
-    wanted: list
-    first_log_time_ns: int
-
-
-def open_playback(bag_path, topics=None) -> BagPlayback:
-    """Check the bag and the topics (default: all); a ValueError names the topics it lacks."""
-    with BagReader(bag_path) as bag:
-        info = bag.topics()
-        wanted = list(info) if not topics else list(topics)
-        missing = [t for t in wanted if t not in info]
-        if missing:
-            raise ValueError(f"{bag_path}: topics {missing} are not in the bag (it has {sorted(info)})")
-        # the first real log time (a message logged with time 0, e.g. before a simulated clock
-        # started, would otherwise make the replay wait decades)
-        t_first = next((m.log_time_ns for m in bag.raw_messages(wanted) if m.log_time_ns > 0), 0)
-    return BagPlayback(bag_path, info, wanted, t_first)
-
-
-def playback_schedule(playback: BagPlayback, start_offset_s: float = 0.0, max_gap_s: float = 10.0,
-                      on_gap: Callable[[int], None] | None = None) -> Iterator[tuple[int, object]]:
-    """One pass over the bag: (ns after the start of the pass at rate 1, raw message) in log-time order.
-
-    Messages before ``start_offset_s`` (s after the first log time) are left out; a pause in the
-    log longer than ``max_gap_s`` is cut out (``on_gap(pause_ns)`` is called for each).
-    """
-    offset_ns = int(start_offset_s * 1e9)
-    skipped_ns = 0
-    previous_ns = None
-    with BagReader(playback.path) as bag:
-        for msg in bag.raw_messages(playback.wanted):
-            rel = msg.log_time_ns - playback.first_log_time_ns - offset_ns
-            if rel < 0:
-                continue
-            if previous_ns is not None and msg.log_time_ns - previous_ns > max_gap_s * 1e9:
-                skipped_ns += msg.log_time_ns - previous_ns  # a long pause in the log: do not wait it out
-                if on_gap is not None:
-                    on_gap(msg.log_time_ns - previous_ns)
-            previous_ns = msg.log_time_ns
-            yield rel - skipped_ns, msg
 
 
 # ---------------------------------------------------------------------------- the node
@@ -173,32 +120,3 @@ def replay(bag_path, rate: float = 1.0, loop: bool = False, topics=None, start_o
         node.destroy_node()
         rclpy.shutdown()
     return publishers.published if publishers is not None else 0
-
-
-# ---------------------------------------------------------------------------- the command
-def cmd_replay(args) -> int:
-    """``dea-ros replay``: check the options, replay, report the count."""
-    for option, value, low, high in (("--rate", args.rate, 1e-3, 1e3), ("--start-offset", args.start_offset, 0.0, 1e7),
-                                     ("--delay", args.delay, 0.0, 3600.0), ("--max-gap", args.max_gap, 1e-3, 1e7)):
-        if not (math.isfinite(value) and low <= value <= high):
-            raise ValueError(f"{option}: must be from {low:g} to {high:g}, got {value:g}")
-    n = replay(args.bag, rate=args.rate, loop=args.loop, topics=args.topics, start_offset_s=args.start_offset,
-               publish_clock=args.clock, max_gap_s=args.max_gap, delay_s=args.delay)
-    print(f"replayed {n} messages from {args.bag}")
-    return 0
-
-
-def register(subparsers) -> None:
-    """Add the ``replay`` subcommand."""
-    p = subparsers.add_parser("replay", help="republish a bag's topics with the original timing (ROS 2)")
-    p.add_argument("bag", help="bag directory or .mcap file")
-    p.add_argument("--rate", type=float, default=1.0, help="speed factor (2: twice as fast)")
-    p.add_argument("--loop", action="store_true", help="start again at the end")
-    p.add_argument("--topics", nargs="+", help="only these topics (default: all)")
-    p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
-    p.add_argument("--clock", action="store_true", help="publish the bag time on /clock (use_sim_time)")
-    p.add_argument("--delay", type=float, default=0.5, metavar="S",
-                   help="wait before the first message so that subscribers are discovered")
-    p.add_argument("--max-gap", type=float, default=10.0, metavar="S",
-                   help="pauses in the log longer than this are skipped, not waited out")
-    p.set_defaults(func=cmd_replay)

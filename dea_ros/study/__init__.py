@@ -11,7 +11,7 @@ Typical use::
 Modules: :mod:`.spec` (the YAML spec, grid / Latin hypercube / Sobol designs), :mod:`.evaluate`
 (one design: static stroke, resonance peak, folds, bands, failures), :mod:`.engine` (serial,
 local processes, Dask), :mod:`.results` (chunk files, Parquet/CSV), :mod:`.runner`
-(resumable runs), :mod:`.plots` (maps), :mod:`.commands` (``dea-ros study``).
+(resumable runs), :mod:`.plots` (maps); the command ``dea-ros study`` is :mod:`dea_ros.cli.study`.
 """
 from .engine import ENGINE_KINDS, Engine, EngineError, Progress, dask_available
 from .evaluate import COLUMNS, FAILURE_REASONS, design_parameters, evaluate_chunk, evaluate_design, result_columns

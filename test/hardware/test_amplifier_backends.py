@@ -31,6 +31,7 @@ from dea_ros.hardware.amplifier.udp import (
 )
 from dea_ros.hardware.amplifier.uldaq import UldaqAmplifierBackend, query_uldaq_board
 from dea_ros.sim.amplifier_receiver import MockAmplifierReceiver
+from fakes import load_fake
 
 
 # =========================================================================== interface + in-process
@@ -234,17 +235,7 @@ class TestUdpMockPair:
 
 
 # =========================================================================== fake uldaq
-def _load_fake():
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("fake_uldaq", Path(__file__).parents[1] / "fakes" / "fake_uldaq.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-fake = _load_fake()
+fake = load_fake("fake_uldaq")
 
 
 @pytest.fixture

@@ -7,11 +7,9 @@ from the truth.
 """
 from __future__ import annotations
 
-import importlib.util
 import math
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -20,17 +18,10 @@ from dea_ros.hardware.laser.ild1320_serial import ILD1320Sensor, describe_ild132
 from dea_ros.hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
 from dea_ros.hardware.laser import MeasurementError, SensorConfigurationError, SensorDisconnected, SensorError
 from dea_ros.sim.ild1320_emulator import ILD1320Emulator
+from fakes import load_fake
 
 
-def _load_fake(name: str):
-    """A test double of test/fakes, loaded by path (the suite runs with --import-mode=importlib)."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "fakes" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-FaultyILD1320Emulator = _load_fake("faulty_ild1320").FaultyILD1320Emulator
+FaultyILD1320Emulator = load_fake("faulty_ild1320").FaultyILD1320Emulator
 
 MR = 0.010
 Q = quantum_m(MR)

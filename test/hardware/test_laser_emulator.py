@@ -1,13 +1,11 @@
 """ILD1320 emulator on a pty, the pyserial backend against it, and the mock sensor."""
 from __future__ import annotations
 
-import importlib.util
 import math
 import os
 import statistics
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
@@ -31,18 +29,11 @@ from dea_ros.hardware.laser import (
 from dea_ros.sim.ild1320_device import ERROR_INVALID_PARAMETER, ERROR_UNKNOWN_COMMAND
 from dea_ros.sim.ild1320_emulator import ILD1320Emulator
 from dea_ros.sim.mock_sensor import MockDisplacementSensor
+from fakes import load_fake
 
 
-def _load_fake(name: str):
-    """A test double of test/fakes, loaded by path (the suite runs with --import-mode=importlib)."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "fakes" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-FaultyILD1320Emulator = _load_fake("faulty_ild1320").FaultyILD1320Emulator
-PausableMockSensor = _load_fake("faulty_mock_sensor").PausableMockSensor
+FaultyILD1320Emulator = load_fake("faulty_ild1320").FaultyILD1320Emulator
+PausableMockSensor = load_fake("faulty_mock_sensor").PausableMockSensor
 
 Q = quantum_m(0.010)
 

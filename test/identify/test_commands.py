@@ -9,7 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from dea_ros.identify.commands import main, register
+from dea_ros.cli import main
+from dea_ros.cli.identify import register
 from dea_ros.model import MembraneParameters, preset
 
 
@@ -74,10 +75,10 @@ def test_synth_rejects_noise_in_micrometres(tmp_path, capsys):
 
 
 def test_python_dash_m_entry_point():
-    proc = subprocess.run([sys.executable, "-m", "dea_ros.identify.commands", "identify", "--help"],
+    proc = subprocess.run([sys.executable, "-m", "dea_ros.cli", "identify", "--help"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0 and "--frequency-method" in proc.stdout and "--static-method" in proc.stdout
-    proc = subprocess.run([sys.executable, "-m", "dea_ros.identify.commands", "identify", "/nonexistent",
+    proc = subprocess.run([sys.executable, "-m", "dea_ros.cli", "identify", "/nonexistent",
                            "--out", "/tmp/never", "--quiet"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "no manifest.yaml" in proc.stderr
     assert np.isfinite(proc.returncode)

@@ -17,7 +17,7 @@ import tempfile
 import threading
 import time
 
-from dea_ros.hardware.amplifier_backends import MockAmplifierReceiver
+from dea_ros.sim.amplifier_receiver import MockAmplifierReceiver
 
 READY_TIMEOUT_S = 30.0  # a loaded CI machine: process start, imports, discovery
 

@@ -28,6 +28,7 @@ from std_msgs.msg import Float64
 
 from dea_ros.model import preset
 from dea_ros.nodes.common import COMMAND_QOS
+from fakes import AMPLIFIER_SABOTEUR
 
 HERE = Path(__file__).parent
 _spec = importlib.util.spec_from_file_location("amp_harness", HERE / "amp_harness.py")
@@ -201,7 +202,7 @@ def test_sigkill_the_mock_amplifier_drops_to_zero_by_itself(ros_context):
 
 @pytest.mark.parametrize("mode", ["raise", "shutdown"])
 def test_uncaught_exception_or_executor_shutdown_ramps_to_zero(capture, mode):
-    proc = subprocess.Popen([sys.executable, str(HERE / "amp_saboteur_process.py"), mode, str(capture.port),
+    proc = subprocess.Popen([sys.executable, str(AMPLIFIER_SABOTEUR), mode, str(capture.port),
                              f"/atk_{mode}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         out, err = proc.communicate(timeout=60)

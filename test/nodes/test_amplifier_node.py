@@ -22,6 +22,7 @@ from sensor_msgs.msg import BatteryState
 
 from dea_ros.nodes.amplifier_node import AmplifierNode
 from dea_ros.nodes.common import SENSOR_QOS
+from fakes import load_fake
 
 HERE = Path(__file__).parent
 SLEW = 20000.0
@@ -221,7 +222,7 @@ def test_exception_in_a_callback_is_a_latched_fault_that_ramps_to_zero(ros_conte
 
 def test_mock_amplifier_drops_to_zero_when_the_datagrams_stop(ros_context, spin_until):
     """The simulated amplifier's own interlock: a dead controller leaves 0 V, not its last value."""
-    from dea_ros.hardware.amplifier_backends import MockAmplifierBackend
+    from dea_ros.hardware.amplifier.udp import MockAmplifierBackend
     from dea_ros.nodes.mock_hardware_node import MockHardwareNode
 
     mock = MockHardwareNode(context=ros_context, parameter_overrides=[
@@ -245,19 +246,11 @@ def test_mock_amplifier_drops_to_zero_when_the_datagrams_stop(ros_context, spin_
 
 
 # ---------------------------------------------------------------------------- uldaq on a fake board
-def _fake_uldaq():
-    import importlib.util
-
-    path = HERE.parent / "hardware" / "fake_uldaq.py"
-    spec = importlib.util.spec_from_file_location("fake_uldaq", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture
 def board(monkeypatch):
-    fake = _fake_uldaq()
+    fake = load_fake("fake_uldaq")
     ul, rig = fake.make("USB-1208HS-4AO")
     monkeypatch.setitem(sys.modules, "uldaq", ul)
     rig.monitor_wiring = (ul.AiInputMode.SINGLE_ENDED, 2)

@@ -17,8 +17,8 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from dea_ros.bag import BagReader, recover_bag
-from dea_ros.bag.mcap_io import scan_mcap
-from dea_ros.bag.extract import EXPERIMENT_METADATA
+from dea_ros.bag.mcap_scan import scan_mcap
+from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range, make_voltage_state
 from dea_ros.nodes.identifier_node import IdentifierNode
 

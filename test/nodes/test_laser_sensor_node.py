@@ -4,10 +4,8 @@ The emulator plays a healthy sensor (served by mock_hardware_node), a misbehavin
 a wrong measuring range, a corrupted stream) and one a previous user left mastered; a peer node
 judges what reaches the ``displacement`` topic and ``/diagnostics``.
 """
-import importlib.util
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,17 +17,15 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Range
 from std_srvs.srv import Trigger
 
-from dea_ros.hardware.ild1320_protocol import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S, quantum_m
+from dea_ros.hardware.laser.ild1320_protocol import quantum_m
+from dea_ros.hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.nodes.common import stamp_to_s
 from dea_ros.nodes.laser_sensor_node import LaserSensorNode
 from dea_ros.nodes.mock_hardware_node import MockHardwareNode
+from fakes import load_fake
 
-_FAKES = Path(__file__).parents[1] / "fakes"
-_spec = importlib.util.spec_from_file_location("faulty_ild1320", _FAKES / "faulty_ild1320.py")
-_faulty = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(_faulty)
-ILD1320Emulator = _faulty.FaultyILD1320Emulator  # the emulator with fault injection (test/fakes)
+ILD1320Emulator = load_fake("faulty_ild1320").FaultyILD1320Emulator  # the emulator with fault injection (test/fakes)
 
 P = Parameter
 Q = quantum_m(0.010)

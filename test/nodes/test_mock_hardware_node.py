@@ -19,7 +19,7 @@ from std_msgs.msg import Float64
 from dea_ros.control import ModelInverse, loop_delays
 from dea_ros.model import config_dir, load_parameters
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, stamp_to_s
-from dea_ros.rig import RigProcesses  # the demo's process runner
+from dea_ros.cli.rig import RigProcesses
 
 TRUTH = config_dir() / "rig" / "mock_membrane.yaml"
 U_MAX = 0.9 * 100e6 * 35e-6

@@ -9,9 +9,9 @@ from __future__ import annotations
 import json
 import sys
 
-from .engine import ENGINE_KINDS, Engine, EngineError
-from .runner import StudyInterrupted, run_study
-from .spec import SpecError, load_spec
+from ..study.engine import ENGINE_KINDS, Engine, EngineError
+from ..study.runner import StudyInterrupted, run_study
+from ..study.spec import SpecError, load_spec
 
 __all__ = ["register", "cmd_study", "add_engine_args", "engine_from_args"]
 

@@ -2,7 +2,7 @@
 import pytest
 
 from dea_ros.bag import BagWriter
-from dea_ros.nodes.replay_node import open_playback, playback_schedule
+from dea_ros.bag.playback import open_playback, playback_schedule
 
 T0 = 1_700_000_000_000_000_000
 

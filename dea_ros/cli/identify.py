@@ -1,11 +1,10 @@
 """Command-line front end of the identification: ``synth`` and ``identify`` subcommands.
 
-``register(subparsers)`` adds both to an :mod:`argparse` sub-parser collection (the
-``dea-ros`` CLI); each sets ``func`` to a handler ``func(args) -> int`` (exit code).
-For testing without the main CLI::
+``register(subparsers)`` adds both to the ``dea-ros`` parser; each sets ``func`` to a handler
+``func(args) -> int`` (exit code)::
 
-    python -m dea_ros.identify.commands synth --membrane A1 --noise 1e-6 --out /tmp/a1
-    python -m dea_ros.identify.commands identify /tmp/a1 --out /tmp/a1_fit --json
+    dea-ros synth --membrane A1 --noise 1e-6 --out /tmp/a1
+    dea-ros identify /tmp/a1 --out /tmp/a1_fit --json
 
 ``identify`` also accepts a rosbag2 MCAP bag (dispatched to :mod:`dea_ros.identify.from_bag`,
 which writes OUT/params.yaml and OUT/report/), and several inputs (:mod:`dea_ros.identify.many`,
@@ -17,7 +16,6 @@ options); 1 a fit or solver failure.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -28,18 +26,18 @@ from ..bag import BagReader
 from ..errors import BagError, CliError, EngineError, ExperimentError, ParameterError
 from ..model.parameters import MembraneParameters, load_parameters
 from ..solvers.inputs import check_harmonics
-from ..study.commands import add_engine_args, engine_from_args
 from ..study.engine import Progress
-from .bag_experiments import BagTopics
-from .experiments import load_experiment_set
-from .from_bag import identify_bag, is_bag
-from .many import identify_many
-from .pipeline import IdentificationOptions, identify
-from .report import write_report
-from .synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
-from .uncertainty import DEFAULT_SAMPLES
+from ..identify.bag_experiments import BagTopics
+from ..identify.experiments import load_experiment_set
+from ..identify.from_bag import identify_bag, is_bag
+from ..identify.many import identify_many
+from ..identify.pipeline import IdentificationOptions, identify
+from ..identify.report import write_report
+from ..identify.synth import DEFAULT_SINE_FREQUENCIES_HZ, synthesize
+from ..identify.uncertainty import DEFAULT_SAMPLES
+from .study import add_engine_args, engine_from_args
 
-__all__ = ["register", "cmd_synth", "cmd_identify", "cmd_identify_many", "build_parser", "main"]
+__all__ = ["register", "cmd_synth", "cmd_identify", "cmd_identify_many"]
 
 
 def _progress_printer(stream):
@@ -415,20 +413,3 @@ def register(subparsers) -> dict:
                             "(format in dea_ros.identify.bag_experiments)")
     ident.set_defaults(func=cmd_identify)
     return {"synth": synth, "identify": ident}
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m dea_ros.identify.commands",
-                                     description="dea_ros identification commands")
-    sub = parser.add_subparsers(dest="command", required=True)
-    register(sub)
-    return parser
-
-
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    return int(args.func(args))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

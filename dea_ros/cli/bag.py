@@ -13,9 +13,9 @@ import sys
 import warnings
 from typing import Any
 
-from .convert import convert_bag
-from .reader import BagReader
-from .recover import recover_bag
+from ..bag.convert import convert_bag
+from ..bag.reader import BagReader
+from ..bag.recover import recover_bag
 
 __all__ = ["register"]
 
