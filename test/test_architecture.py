@@ -1,12 +1,22 @@
-"""The package's shape, enforced: one error family.
+"""The package's shape, enforced (issue 24).
 
-Every exception class dea_ros defines derives from :class:`dea_ros.errors.DeaRosError` (and every
-warning from :class:`dea_ros.errors.DeaRosWarning`), so a caller can catch "an error of this
-package"; the command line turns any of them into a message and exit code 2.
+* One error family: every exception class dea_ros defines derives from
+  :class:`dea_ros.errors.DeaRosError` (every warning from :class:`dea_ros.errors.DeaRosWarning`),
+  so a caller can catch "an error of this package"; the command line turns any of them into a
+  message and exit code 2.
+* Layers you can see in the tree: imports point down the graph :data:`ALLOWED_IMPORTS` (no
+  package imports a package above it), rclpy and the ROS messages only in ``nodes/``.
+* One concept per file and readable functions: no function over 80 lines, no file over 700, no
+  private name imported from another module, no package import hidden inside a function (outside
+  the command line, which loads a command's modules when it runs; optional dependencies may be
+  imported where they are used).
 """
+import ast
 import importlib
 import inspect
 import pkgutil
+import sys
+from pathlib import Path
 
 import pytest
 
@@ -87,3 +97,125 @@ def test_the_cli_turns_any_package_error_into_exit_2(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "dea-ros equilibrium: error: the branch could not be followed" in err
     assert "Traceback" not in err
+
+
+# ---------------------------------------------------------------------------------------- layers
+PACKAGE_DIR = Path(dea_ros.__file__).resolve().parent
+#: subpackage -> the subpackages it may import ("" is dea_ros/__init__: the version)
+ALLOWED_IMPORTS = {
+    "errors": set(),
+    "": set(),
+    "model": {"errors"},
+    "solvers": {"errors", "model"},
+    "hardware": {"errors", "model"},
+    "bag": {"errors", ""},
+    "sim": {"errors", "model", "solvers", "hardware"},
+    "identify": {"errors", "model", "solvers", "bag"},
+    "study": {"errors", "model", "solvers"},
+    "control": {"errors", "model", "solvers", "hardware", "sim"},
+    "nodes": {"errors", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study", "control"},
+    "cli": {"errors", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study", "control", "nodes"},
+}
+ROS_MODULES = {"rclpy", "std_msgs", "sensor_msgs", "trajectory_msgs", "diagnostic_msgs", "lifecycle_msgs",
+               "rosgraph_msgs", "rcl_interfaces", "std_srvs", "builtin_interfaces", "rosidl_runtime_py"}
+#: third-party modules a module may import where it uses them (optional, or heavy and rarely needed)
+OPTIONAL_MODULES = {"numba", "dask", "distributed", "pyarrow", "pandas", "tqdm", "uldaq", "serial", "mousai",
+                    "matplotlib", "zstandard", "lz4", "ament_index_python"} | ROS_MODULES
+
+
+def source_files():
+    return sorted(p for p in PACKAGE_DIR.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def subpackage(path: Path) -> str:
+    rel = path.relative_to(PACKAGE_DIR).with_suffix("")
+    return "" if rel.parts == ("__init__",) else rel.parts[0]
+
+
+def imported_modules(path: Path, tree: ast.AST):
+    """(node, absolute module name) of every import in the file, relative ones resolved."""
+    package = ["dea_ros"] + list(path.relative_to(PACKAGE_DIR).parent.parts)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                yield node, ".".join(base + ([node.module] if node.module else []))
+            else:
+                yield node, node.module or ""
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node, alias.name
+
+
+def enclosing_function(tree: ast.AST, target: ast.AST):
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            if any(child is target for child in ast.walk(node)):
+                return node
+    return None
+
+
+@pytest.fixture(scope="module")
+def parsed():
+    return [(path, ast.parse(path.read_text())) for path in source_files()]
+
+
+def test_imports_point_down_the_layers(parsed):
+    wrong = []
+    for path, tree in parsed:
+        here = subpackage(path)
+        for node, module in imported_modules(path, tree):
+            parts = module.split(".")
+            if parts[0] != "dea_ros":
+                continue
+            there = parts[1] if len(parts) > 1 else ""
+            if there not in ALLOWED_IMPORTS:  # a module directly in dea_ros/ other than errors
+                there = parts[1]
+            if there != here and there not in ALLOWED_IMPORTS.get(here, set()):
+                wrong.append(f"{path.relative_to(PACKAGE_DIR)}:{node.lineno}: {here or 'dea_ros'} imports {module}")
+    assert not wrong, "imports against the layers (ALLOWED_IMPORTS):\n" + "\n".join(wrong)
+
+
+def test_every_module_belongs_to_a_layer():
+    unknown = {subpackage(p) for p in source_files()} - set(ALLOWED_IMPORTS)
+    assert not unknown, f"modules outside the layers of ALLOWED_IMPORTS: {sorted(unknown)}"
+
+
+def test_ros_is_imported_only_by_the_nodes(parsed):
+    wrong = [f"{path.relative_to(PACKAGE_DIR)}:{node.lineno}: {module}" for path, tree in parsed
+             for node, module in imported_modules(path, tree)
+             if module.split(".")[0] in ROS_MODULES and subpackage(path) != "nodes"]
+    assert not wrong, f"ROS imported outside dea_ros/nodes: {wrong}"
+
+
+def test_no_private_name_is_imported_from_another_module(parsed):
+    wrong = [f"{path.relative_to(PACKAGE_DIR)}:{node.lineno}: {alias.name} from {module}" for path, tree in parsed
+             for node, module in imported_modules(path, tree) if isinstance(node, ast.ImportFrom)
+             for alias in node.names if alias.name.startswith("_") and not alias.name.startswith("__")]
+    assert not wrong, f"private names imported across modules: {wrong}"
+
+
+def test_package_imports_are_at_the_top_of_modules(parsed):
+    hidden = []
+    for path, tree in parsed:
+        if subpackage(path) == "cli":
+            continue
+        for node, module in imported_modules(path, tree):
+            top = module.split(".")[0]
+            if top in OPTIONAL_MODULES or top in sys.stdlib_module_names:
+                continue
+            function = enclosing_function(tree, node)
+            if function is not None:
+                hidden.append(f"{path.relative_to(PACKAGE_DIR)}:{node.lineno} in {function.name}(): {module}")
+    assert not hidden, "imports hidden inside functions:\n" + "\n".join(hidden)
+
+
+def test_functions_and_files_stay_readable(parsed):
+    long_functions = [f"{path.relative_to(PACKAGE_DIR)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1})"
+                      for path, tree in parsed for node in ast.walk(tree)
+                      if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+                      and node.end_lineno - node.lineno + 1 > 80]
+    long_files = [f"{path.relative_to(PACKAGE_DIR)} ({len(path.read_text().splitlines())})" for path, _ in parsed
+                  if len(path.read_text().splitlines()) > 700]
+    assert not long_functions, f"functions over 80 lines: {long_functions}"
+    assert not long_files, f"files over 700 lines: {long_files}"
