@@ -1,9 +1,9 @@
 """One front end for the periodic steady state: native HBM, mousai HBM, or forward integration.
 
 ``solve_periodic(params, periodic_input, method=...)`` returns a
-:class:`~dea_ros.solvers.harmonic_balance.PeriodicSolution` whatever the method:
+:class:`~dea_ros.solvers.periodic_solution.PeriodicSolution` whatever the method:
 
-* ``"native"``: :func:`~dea_ros.solvers.harmonic_balance.solve_native` (default),
+* ``"native"``: :func:`~dea_ros.solvers.newton.solve_native` (default),
 * ``"mousai"``: :func:`~dea_ros.solvers.mousai_backend.solve_mousai` (the paper's solver),
 * ``"integration"``: :func:`integrate_to_steady_state`, brute-force forward
   integration from the static equilibrium until the periodic state is reached.
@@ -27,16 +27,13 @@ from scipy.integrate import solve_ivp
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from .harmonic_balance import (
-    SYMMETRY_TOL,
-    PeriodicSolution,
-    attach_floquet,
-    floquet_multipliers,
-    half_period_view,
-    model_setup,
-)
-from .inputs import PeriodicInput
 from ..errors import SteadyStateError
+from .collocation import model_setup
+from .floquet import SYMMETRY_TOL, attach_floquet, floquet_multipliers, half_period_view
+from .inputs import PeriodicInput
+from .mousai_backend import solve_mousai
+from .newton import solve_native
+from .periodic_solution import PeriodicSolution
 
 __all__ = ["solve_periodic", "integrate_to_steady_state", "shoot_periodic_orbit", "SteadyStateError", "METHODS"]
 
@@ -155,7 +152,7 @@ def shoot_periodic_orbit(
     harmonic-balance branches are tested against, also where the orbit is unstable. The result
     samples the orbit at ``samples_per_period`` phases; ``multipliers`` are the eigenvalues of the
     monodromy over T (and, for a T/2-periodic orbit of a T/2-periodic u^2, ``half_period_multipliers``
-    judge its stability, see :func:`~dea_ros.solvers.harmonic_balance.attach_floquet`).
+    judge its stability, see :func:`~dea_ros.solvers.floquet.attach_floquet`).
     Raises :class:`SteadyStateError` when Newton does not converge.
     """
     t_start = time.perf_counter()
@@ -221,13 +218,9 @@ def solve_periodic(
 ) -> PeriodicSolution:
     """Periodic steady state with the chosen method (``native``, ``mousai`` or ``integration``)."""
     if method == "native":
-        from .harmonic_balance import solve_native
-
         return solve_native(params, periodic_input, n_harmonics, x_guess=x_guess,
                             stability=stability, **options)
     if method == "mousai":
-        from .mousai_backend import solve_mousai
-
         return solve_mousai(params, periodic_input, n_harmonics, x_guess=x_guess,
                             stability=stability, **options)
     if method == "integration":
