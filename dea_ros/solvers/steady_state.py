@@ -75,38 +75,8 @@ def integrate_to_steady_state(
         u = periodic_input.at_phase(omega * t)
         return np.stack(model.rhs_u2(y[0], y[1], y[2], u * u))
 
-    periods_per_chunk = max(1, int(np.ceil(1.0 / period)))
-    t0 = 0.0
-    boundaries = [x / scale]
-    deltas: list[float] = []
-    ok_streak = 0
-    nfev = 0
-    n_periods = 0
-    last_sol = None
-    while t0 < max_time_s:
-        t1 = t0 + periods_per_chunk * period
-        sol = solve_ivp(fun, (t0, t1), x, method=method, rtol=rtol, atol=atol, dense_output=True)
-        if not sol.success:
-            raise SteadyStateError(f"integration failed at t = {t0:.3f} s: {sol.message}")
-        nfev += sol.nfev
-        for k in range(1, periods_per_chunk + 1):
-            tk = t0 + k * period
-            pk = sol.sol(tk) / scale
-            deltas.append(float(np.max(np.abs(pk - boundaries[-1]))))
-            boundaries.append(pk)
-            n_periods += 1
-            if len(deltas) >= 3:
-                rho = deltas[-1] / deltas[-2] if deltas[-2] > 0 else 0.0
-                est = deltas[-1] * rho / (1.0 - rho) if rho < 1.0 else np.inf
-                est = max(est, deltas[-1] * 1e-3)
-                ok_streak = ok_streak + 1 if est < tol else 0
-                if ok_streak >= 2:
-                    last_sol = (sol, tk - period)
-                    break
-        x = sol.y[:, -1]
-        if last_sol is not None:
-            break
-        t0 = t1
+    last_sol, deltas, nfev, n_periods = _integrate_until_periodic(fun, x, period, scale, tol, rtol, atol,
+                                                                  max_time_s, method)
     if last_sol is None:
         raise SteadyStateError(
             f"no periodic steady state within {max_time_s:g} s simulated at "
@@ -132,6 +102,41 @@ def integrate_to_steady_state(
         attach_floquet(model, out, scale=scale)
     out.wall_time_s = time.perf_counter() - t_start
     return out
+
+
+def _integrate_until_periodic(fun, x, period, scale, tol, rtol, atol, max_time_s, method) -> tuple:
+    """Integrate x' = fun(t, x) in chunks of about 1 s until the Poincare map has converged (module docstring):
+    (dense solution and start of the last period, or None after ``max_time_s``; the scaled changes
+    delta_k of the map; RHS calls; periods integrated)."""
+    periods_per_chunk = max(1, int(np.ceil(1.0 / period)))
+    t0 = 0.0
+    boundaries = [x / scale]
+    deltas: list[float] = []
+    ok_streak = 0
+    nfev = 0
+    n_periods = 0
+    while t0 < max_time_s:
+        t1 = t0 + periods_per_chunk * period
+        sol = solve_ivp(fun, (t0, t1), x, method=method, rtol=rtol, atol=atol, dense_output=True)
+        if not sol.success:
+            raise SteadyStateError(f"integration failed at t = {t0:.3f} s: {sol.message}")
+        nfev += sol.nfev
+        for k in range(1, periods_per_chunk + 1):
+            tk = t0 + k * period
+            pk = sol.sol(tk) / scale
+            deltas.append(float(np.max(np.abs(pk - boundaries[-1]))))
+            boundaries.append(pk)
+            n_periods += 1
+            if len(deltas) >= 3:
+                rho = deltas[-1] / deltas[-2] if deltas[-2] > 0 else 0.0
+                est = deltas[-1] * rho / (1.0 - rho) if rho < 1.0 else np.inf
+                est = max(est, deltas[-1] * 1e-3)
+                ok_streak = ok_streak + 1 if est < tol else 0
+                if ok_streak >= 2:
+                    return (sol, tk - period), deltas, nfev, n_periods
+        x = sol.y[:, -1]
+        t0 = t1
+    return None, deltas, nfev, n_periods
 
 
 def shoot_periodic_orbit(
