@@ -77,6 +77,10 @@ class ReferenceTracer:
             prev_snorm = snorm
         return None
 
+    def tangent_from_last(self):
+        """Unit tangent from the bordered system of the last converged corrector."""
+        return self.last_tangent()
+
     def solve_at(self, p_target, z_seed):
         return self.system.newton(z_seed, math.exp(p_target), self.u2, tol=self.tol, max_iter=30)
 
