@@ -28,7 +28,7 @@ from .collocation_kernels import (
 from .jit import jit
 from .newton_kernels import newton_with_tables
 
-__all__ = ["CollocationBranch", "collocation_branch", "bordered_corrector", "bordered_tangent"]
+__all__ = ["CollocationBranch", "collocation_branch", "bordered_tangent"]
 
 #: The arclength problem of one branch: u^2 (V^2) at the M collocation phases, the model constants,
 #: the state scales, the reference rate (1/s), the differentiation matrix D, the tables of M
@@ -50,7 +50,8 @@ def collocation_branch(u2, constants, scale, rate_ref, dmat, odd_projector=None)
 
 
 @jit
-def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+def _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
+               d2col):
     """Pseudo-arclength corrector of the continuation (p = ln omega): (ok, z, p, iterations, t).
 
     Newton on [R(z, e^p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0, each step by the structured
@@ -60,17 +61,8 @@ def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_re
     then count that step, so the step control sees the same numbers). t (n + 1) is the next tangent,
     unnormalised: the bordered system of the last matrix built (at the last iterate before the final
     step) solved for e_n, as :func:`bordered_tangent` there (the same numbers: one elimination for both
-    right-hand sides).
+    right-hand sides). The tables of m (``cos_t``, ``sin_t``, ``d2col``) are given.
     """
-    cos_t, sin_t = trig_tables(u2.shape[0])
-    return _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
-                      second_derivative_column(dmat))
-
-
-@jit
-def _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
-               d2col):
-    """:func:`bordered_corrector` with the tables of m given."""
     n = z_pred.shape[0]
     m = u2.shape[0]
     zc = z_pred.copy()
@@ -164,7 +156,7 @@ def _residual_jacobian(problem, z, p):
 
 @jit
 def _correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
-    """:func:`bordered_corrector` on the branch."""
+    """:func:`_corrector` on the branch."""
     b = problem
     return _corrector(z_pred, p_pred, tz, tp, wz, b.u2, b.constants, b.scale, b.rate_ref, b.dmat, tol, max_iter,
                       b.cos_t, b.sin_t, b.d2col)

@@ -60,3 +60,13 @@ def test_a_users_numba_cache_dir_is_respected(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == str(tmp_path / "mine")
+
+
+def test_every_module_with_kernels_is_part_of_the_cache_key():
+    """jit.KERNEL_SOURCES: the sources whose hash names the cache directory (a kernel compiled into its
+    callers from another module must invalidate their cache entries when it changes)."""
+    root = Path(dea_ros.__file__).parent
+    with_kernels = {path.relative_to(root).as_posix() for path in root.rglob("*.py")
+                    if "from .jit import" in path.read_text() or path.name == "jit.py"}
+    assert with_kernels <= set(jit.KERNEL_SOURCES)
+    assert all((root / name).is_file() for name in jit.KERNEL_SOURCES)
