@@ -26,6 +26,13 @@ calling them from Python raises. Why not pass the functions as arguments: numba 
 per function argument and never finds those specialisations in its on-disk cache (their cache keys
 hold process-specific identities; measured with numba 0.68), while dispatch on a registered
 namedtuple type is cached like any kernel.
+
+Caching. numba keeps one cache index per kernel, with the argument types of all its specialisations
+pickled by reference; a process that cannot import one of those types cannot load any of them. So
+the engine's entry points (:func:`trace_branch`, :func:`correct`, :func:`solve_at`, :func:`tangent`)
+exist twice: compiled into the on-disk cache for the problem types registered with ``cache=True``
+(dea_ros's own, importable everywhere) and compiled in each process for any other (a problem defined
+in a script or a test); the helpers that take the problem are inlined or never cached.
 """
 from __future__ import annotations
 
@@ -35,7 +42,7 @@ import numpy as np
 from numba import types
 from numba.extending import overload
 
-from .jit import jit
+from .jit import jit, jit_inline, jit_uncached
 
 __all__ = [
     "problem_residual_jacobian", "problem_correct", "problem_solve_at", "problem_tangent", "problem_turned_back",
@@ -86,14 +93,19 @@ def _is_instance(problem, problem_type) -> bool:
 
 
 def register_problem(problem_type, residual_jacobian, correct_fn=None, solve_at_fn=None, tangent_fn=None,
-                     turned_back_fn=None) -> None:
+                     turned_back_fn=None, cache: bool = False) -> None:
     """Let the engine continue instances of the namedtuple class ``problem_type``.
 
     The functions are compiled (:func:`~dea_ros.solvers.jit.jit`) with the signatures of the
     ``problem_*`` stubs; the optional ones default to the dense :func:`dense_correct`,
     :func:`dense_solve_at`, :func:`dense_tangent` (built on ``residual_jacobian``) and
-    :func:`never_turned_back`.
+    :func:`never_turned_back`. ``cache``: compile the engine for this type into the on-disk cache, only
+    for a type of an importable module of dea_ros (numba's cache index pickles the type by reference: one
+    another process cannot import would break every process that reads the index); otherwise the engine
+    is compiled for it in each process.
     """
+    if cache:
+        _CACHED_TYPES.add(problem_type)
     correct_fn = dense_correct if correct_fn is None else correct_fn
     solve_at_fn = dense_solve_at if solve_at_fn is None else solve_at_fn
     tangent_fn = dense_tangent if tangent_fn is None else tangent_fn
@@ -136,7 +148,7 @@ def converges_below(snorm, prev_snorm, tol):
     return snorm < 0.1 * prev_snorm and snorm * snorm * snorm < 0.1 * tol * prev_snorm * prev_snorm
 
 
-@jit
+@jit_uncached
 def _bordered_matrix(problem, z, p, tz, tp, wz):
     """(R, [[dR/dz, dR/dp], [wz tz^T, tp]]) at (z, p)."""
     n = z.shape[0]
@@ -149,7 +161,7 @@ def _bordered_matrix(problem, z, p, tz, tp, wz):
     return r, big
 
 
-@jit
+@jit_uncached
 def _unit_vector(n):
     """e_n of length n + 1."""
     out = np.zeros(n + 1)
@@ -157,7 +169,7 @@ def _unit_vector(n):
     return out
 
 
-@jit
+@jit_uncached
 def dense_correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
     """Newton on [R(z, p); wz tz.(z - z_pred) + tp (p - p_pred)] = 0 by dense LU: (ok, z, p, iterations, t).
 
@@ -194,7 +206,7 @@ def dense_correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
     return False, zc, pc, max_iter, t
 
 
-@jit
+@jit_uncached
 def dense_solve_at(problem, seed, p, tol, max_iter):
     """Newton on R(z, p) = 0 at fixed p from ``seed`` by dense LU: (z, iterations, status), status 0 when
     the max-norm of the full step fell below ``tol``, 1 on a singular or non-finite step, 4 after
@@ -215,7 +227,7 @@ def dense_solve_at(problem, seed, p, tol, max_iter):
     return z, max_iter, 4
 
 
-@jit
+@jit_uncached
 def dense_tangent(problem, z, p, tz, tp, wz):
     """(t, ok): [[dR/dz, dR/dp], [wz tz^T, tp]] t = e_n by dense LU (ok False when singular)."""
     _r, big = _bordered_matrix(problem, z, p, tz, tp, wz)
@@ -225,7 +237,7 @@ def dense_tangent(problem, z, p, tz, tp, wz):
         return _unit_vector(z.shape[0]), False
 
 
-@jit
+@jit_uncached
 def never_turned_back(problem, z_prev, z_new):
     """The default stop test: never."""
     return False
@@ -288,7 +300,7 @@ def _grow_rows(a, rows):
     return out
 
 
-@jit
+@jit_inline
 def _solve_crossings(problem, step, z, tz, p, tp, z_new, tz_new, p_new, tp_new, ds, p_grid, segment, tol, g_z,
                      g_table, n_grid):
     """Solve the values of ``p_grid`` that the step number ``step`` from p to p_new crosses (in the
@@ -363,17 +375,8 @@ def _unit(t, wz):
     return tz / norm, tp / norm
 
 
-@jit
-def trace_branch(problem, z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, wz, tol):
-    """Follow the branch of ``problem`` from (z, p) along the unit tangent (tz, tp) (module docstring);
-    the first step is h0 long, the corrector gets 12 iterations.
-
-    Returns (status, p_at_end, steps, stopped, zs, tzs, step_table, fold_steps, grid_z, grid_table):
-    status 0 or one of the TRACE_* codes; zs, tzs (K + 1, n) the branch points and unit tangents;
-    step_table (K + 1, 4) with the columns STEP_* (STEP_H: the arclength of the step from row k, in
-    row k; the last row's is unset); grid_z (G, n) and grid_table (G, 6, columns GRID_*) the solutions at
-    the crossed grid values; stopped: the problem's stop test ended the branch.
-    """
+def _trace_branch(problem, z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, wz, tol):
+    """The compiled loop of :func:`trace_branch`."""
     n = z.shape[0]
     zs, tzs, table = np.empty((256, n)), np.empty((256, n)), np.empty((256, 4))
     folds = np.empty(256, dtype=np.int64)
@@ -427,19 +430,53 @@ def trace_branch(problem, z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid
 
 
 # -------------------------------------------------------------- entry points from Python
-@jit
-def correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
-    """:func:`problem_correct` of ``problem``, callable from Python."""
+def _correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
     return problem_correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter)
 
 
-@jit
-def solve_at(problem, seed, p, tol, max_iter):
-    """:func:`problem_solve_at` of ``problem``, callable from Python."""
+def _solve_at(problem, seed, p, tol, max_iter):
     return problem_solve_at(problem, seed, p, tol, max_iter)
 
 
-@jit
-def tangent(problem, z, p, tz, tp, wz):
-    """:func:`problem_tangent` of ``problem``, callable from Python."""
+def _tangent(problem, z, p, tz, tp, wz):
     return problem_tangent(problem, z, p, tz, tp, wz)
+
+
+_ENTRY_POINTS = (_trace_branch, _correct, _solve_at, _tangent)
+#: The engine's entry points compiled into the on-disk cache (for the problem types registered with
+#: ``cache=True``) and in each process (for the others).
+_CACHED, _UNCACHED = tuple(jit(fn) for fn in _ENTRY_POINTS), tuple(jit_uncached(fn) for fn in _ENTRY_POINTS)
+_CACHED_TYPES: set = set()
+
+
+def _compiled(problem) -> tuple:
+    """The entry points (trace_branch, correct, solve_at, tangent) compiled for ``problem``'s type."""
+    return _CACHED if type(problem) in _CACHED_TYPES else _UNCACHED
+
+
+def trace_branch(problem, z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, wz, tol):
+    """Follow the branch of ``problem`` from (z, p) along the unit tangent (tz, tp) (module docstring);
+    the first step is h0 long, the corrector gets 12 iterations.
+
+    Returns (status, p_at_end, steps, stopped, zs, tzs, step_table, fold_steps, grid_z, grid_table):
+    status 0 or one of the TRACE_* codes; zs, tzs (K + 1, n) the branch points and unit tangents;
+    step_table (K + 1, 4) with the columns STEP_* (STEP_H: the arclength of the step from row k, in
+    row k; the last row's is unset); grid_z (G, n) and grid_table (G, 6, columns GRID_*) the solutions at
+    the crossed grid values; stopped: the problem's stop test ended the branch.
+    """
+    return _compiled(problem)[0](problem, z, p, tz, tp, p_lo, p_hi, max_steps, h0, h_max, p_grid, wz, tol)
+
+
+def correct(problem, z_pred, p_pred, tz, tp, wz, tol, max_iter):
+    """:func:`problem_correct` of ``problem``."""
+    return _compiled(problem)[1](problem, z_pred, p_pred, tz, tp, wz, tol, max_iter)
+
+
+def solve_at(problem, seed, p, tol, max_iter):
+    """:func:`problem_solve_at` of ``problem``."""
+    return _compiled(problem)[2](problem, seed, p, tol, max_iter)
+
+
+def tangent(problem, z, p, tz, tp, wz):
+    """:func:`problem_tangent` of ``problem``."""
+    return _compiled(problem)[3](problem, z, p, tz, tp, wz)

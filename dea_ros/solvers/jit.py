@@ -24,7 +24,7 @@ from pathlib import Path
 import numba
 from numba.core import config as numba_config
 
-__all__ = ["jit", "jit_inline", "cache_directory", "KERNEL_SOURCES", "CACHE_DIR"]
+__all__ = ["jit", "jit_uncached", "jit_inline", "cache_directory", "KERNEL_SOURCES", "CACHE_DIR"]
 
 #: The modules (relative to the dea_ros package) whose sources the cached kernels are compiled from.
 KERNEL_SOURCES = (
@@ -71,6 +71,13 @@ def jit(fn):
         return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
     except RuntimeError:  # no locator could create a cache directory: compile in each process
         return numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
+
+
+def jit_uncached(fn):
+    """``fn`` compiled by numba as :func:`jit` does, but in each process, never cached: for kernels specialised
+    on argument types that another process may not be able to import (numba's cache index pickles the
+    types of every specialisation by reference, and one it cannot unpickle breaks every load of it)."""
+    return numba.njit(cache=False, nogil=True, error_model="numpy")(fn)
 
 
 def jit_inline(fn):

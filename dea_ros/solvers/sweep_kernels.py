@@ -188,4 +188,4 @@ def _turned_back(problem, z_prev, z_new):
     return na > 1e-6 * math.sqrt(z_new.shape[0]) and dot < -0.5 * na * nb
 
 
-register_problem(CollocationBranch, _residual_jacobian, _correct, _solve_at, _tangent, _turned_back)
+register_problem(CollocationBranch, _residual_jacobian, _correct, _solve_at, _tangent, _turned_back, cache=True)

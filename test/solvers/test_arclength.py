@@ -11,13 +11,16 @@ two folds, between which three amplitudes coexist; every point satisfies the amp
 Jacobian: the engine's dense corrector, tangent and fixed-p Newton do the rest.
 """
 import math
+import subprocess
+import sys
 from collections import namedtuple
+from pathlib import Path
 
 import numba
 import numpy as np
 import pytest
 
-from dea_ros.solvers import arclength_kernels as engine
+from dea_ros.solvers import arclength_kernels as engine, jit
 
 Duffing = namedtuple("Duffing", ["zeta", "gamma", "force"])
 
@@ -83,3 +86,18 @@ def test_the_engine_stops_after_max_steps():
     z0, tz, tp = start(0.5)
     status = engine.trace_branch(PROBLEM, z0, 0.5, tz, tp, 0.4, 2.5, 3, 0.01, 0.05, np.array([1.0]), 1.0, 1e-12)[0]
     assert status == engine.TRACE_MAX_STEPS
+
+
+def test_a_problem_of_a_test_module_stays_out_of_the_kernel_cache():
+    """numba pickles the argument types of every cached specialisation into one index per kernel: a problem
+    type another process cannot import (this test module's) must never get there, or every process that
+    loads the engine from the cache fails (it did: 'No module named test.solvers' in the nodes)."""
+    z0, tz, tp = start(0.5)
+    engine.trace_branch(PROBLEM, z0, 0.5, tz, tp, 0.4, 1.0, 50, 0.01, 0.05, np.array([0.7]), 1.0, 1e-12)
+    for index in Path(jit.CACHE_DIR).rglob("*.nbi"):
+        assert b"Duffing" not in index.read_bytes(), index
+    out = subprocess.run([sys.executable, "-c", "import numpy as np; from dea_ros.model import preset; "
+                          "from dea_ros.solvers import SinePeriodic, frequency_sweep; "
+                          "frequency_sweep(preset('A2'), SinePeriodic(2500.0, 1.0), np.linspace(1.0, 3.0, 3), "
+                          "n_harmonics=4)"], capture_output=True, text=True, timeout=1800)
+    assert out.returncode == 0, out.stderr[-2000:]
