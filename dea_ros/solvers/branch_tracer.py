@@ -23,7 +23,7 @@ from .collocation import ModelSetup
 from .floquet import floquet_multipliers, magnus_steps
 from .inputs import PeriodicInput
 from .periodic_solution import PeriodicSolution
-from .sweep_kernels import collocation_branch
+from .sweep_kernels import bordered_corrector, bordered_tangent, collocation_branch
 
 __all__ = ["GridPoint", "BranchTrace", "BranchTracer"]
 
@@ -86,18 +86,22 @@ class BranchTracer:
         return tz / norm, tp / norm
 
     def tangent(self, z, p, prev_tz, prev_tp):
-        """The unit tangent at (z, p), oriented by the previous one (bordered system, structured solve)."""
-        t, ok = engine.tangent(self.problem, np.asarray(z, dtype=float), float(p), np.asarray(prev_tz, dtype=float),
-                               float(prev_tp), self.wz)
+        """The unit tangent at (z, p), oriented by the previous one (bordered system, structured solve; the
+        problem's own kernel with flat arguments: a call costs ~3 us less than through the engine's)."""
+        sy = self.system
+        t, ok = bordered_tangent(np.asarray(z, dtype=float), float(p), np.asarray(prev_tz, dtype=float),
+                                 float(prev_tp), self.wz, self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta)
         if not ok:
             raise np.linalg.LinAlgError("Singular matrix")
         return self._normalised(t)
 
     def correct(self, z_pred, p_pred, tz, tp, max_iter: int = 12):
-        """The corrector from a predicted point: (z, p, iterations), or None when it fails."""
-        ok, zc, pc, it, _t = engine.correct(self.problem, np.asarray(z_pred, dtype=float), float(p_pred),
-                                            np.asarray(tz, dtype=float), float(tp), self.wz, float(self.tol),
-                                            int(max_iter))
+        """The corrector from a predicted point: (z, p, iterations), or None when it fails (the problem's own
+        kernel, flat arguments)."""
+        sy = self.system
+        ok, zc, pc, it, _t = bordered_corrector(
+            np.asarray(z_pred, dtype=float), float(p_pred), np.asarray(tz, dtype=float), float(tp), self.wz,
+            self.u2, sy.constants, sy.scale, sy.rate_ref, sy.d_theta, float(self.tol), int(max_iter))
         return (zc, pc, it) if ok else None
 
     def solve_at(self, p_target, z_seed):

@@ -28,7 +28,7 @@ from .collocation_kernels import (
 from .jit import jit
 from .newton_kernels import newton_with_tables
 
-__all__ = ["CollocationBranch", "collocation_branch", "bordered_tangent"]
+__all__ = ["CollocationBranch", "collocation_branch", "bordered_corrector", "bordered_tangent"]
 
 #: The arclength problem of one branch: u^2 (V^2) at the M collocation phases, the model constants,
 #: the state scales, the reference rate (1/s), the differentiation matrix D, the tables of M
@@ -47,6 +47,14 @@ def collocation_branch(u2, constants, scale, rate_ref, dmat, odd_projector=None)
     podd = np.zeros((1, 1)) if odd_projector is None else np.ascontiguousarray(odd_projector, dtype=float)
     return CollocationBranch(u2, tuple(float(c) for c in constants), np.asarray(scale, dtype=float), float(rate_ref),
                              dmat, cos_t, sin_t, second_derivative_column(dmat), podd, odd_projector is not None)
+
+
+@jit
+def bordered_corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter):
+    """:func:`_corrector` with the tables of m computed (flat arguments: the cheapest call from Python)."""
+    cos_t, sin_t = trig_tables(u2.shape[0])
+    return _corrector(z_pred, p_pred, tz, tp, wz, u2, constants, scale, rate_ref, dmat, tol, max_iter, cos_t, sin_t,
+                      second_derivative_column(dmat))
 
 
 @jit
