@@ -13,7 +13,9 @@ the source file of the function it loads, not those of the kernels it calls from
 kernel changed in one file would otherwise leave stale machine code in its callers' cache entries.
 The directory is set in ``numba.core.config`` (this process only; the environment is left alone)
 before any kernel is decorated. When no cache location is writable, the kernels are compiled at
-every start (slower start, same results).
+every start (slower start, same results). Measured on a 2-core AMD EPYC with numba 0.68 (issue 24):
+compiling what a first solve with Floquet stability and a first sweep need takes ~54 s of CPU once; a
+fresh process then imports the solvers, solves and sweeps in ~1.8 s.
 """
 from __future__ import annotations
 
