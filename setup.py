@@ -23,7 +23,7 @@ setup(
     # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2
     # is sourced, from requirements-ros-wheels.txt: never from install_requires.
     # Minimum versions: the oldest each line of code needs, tested in CI (.ci/run, stack humble:
-    # Ubuntu 22.04's numpy 1.21.5, scipy 1.8.0, matplotlib 3.5.1, PyYAML 5.4.1, pyserial 3.5).
+    # Ubuntu 22.04's numpy 1.21.5, scipy 1.8.0, matplotlib 3.5.1, PyYAML 5.4.1, pyserial 3.5, numba 0.55.1).
     # On a lab PC apt's packages satisfy them, so pip leaves them alone.
     python_requires=">=3.10",
     install_requires=[
@@ -34,9 +34,11 @@ setup(
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
         "pyserial>=3.5",
+        # the compiled kernels of the solvers (harmonic balance, continuation, Floquet): Ubuntu 22.04's 0.55.1
+        "numba>=0.55",
     ],
     extras_require={
-        # optional compiled kernels of the harmonic balance (dea_ros.solvers.hbm_kernels): same results, faster
+        # numba is required now (install_requires); the extra stays so that `pip install dea_ros[fast]` still works
         "fast": ["numba>=0.55"],
         # only for `--method mousai` (the paper's harmonic-balance code, for comparison)
         "mousai": ["mousai==0.3.1"],

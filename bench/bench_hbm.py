@@ -1,8 +1,8 @@
 """Benchmark of the paper's Table V: steady-state solves for membrane A2, 2.5 kV sine, 0.1-20 Hz.
 
 Measured side by side in one run (these machines are shared and noisy: compare ratios):
-* native HBM (cold start: its own linearised initial guess), on its default path (the compiled
-  kernels of dea_ros.solvers.hbm_kernels when numba is installed) and on the numpy path,
+* native HBM (cold start: its own linearised initial guess; the compiled kernels of
+  dea_ros.solvers.newton_kernels, the only implementation since issue 24),
 * native batched (all frequencies in one call of solve_native_batch), without and with Floquet
   stability (steady states per second and core),
 * mousai ``hb_time`` (the paper's solver; the same initial guess),
@@ -11,7 +11,7 @@ Measured side by side in one run (these machines are shared and noisy: compare r
   units, is below 1e-7 for two consecutive periods: see dea_ros.solvers.steady_state),
 for N = 2, 4, 6, 8; the accuracy of eq. 25 against a converged integration (tol 1e-9),
 near resonance and away from it; the number of harmonics native HBM needs for 0.1 %;
-and the wall time of a 200-point sweep (0.1-20 Hz) with stability and bands on both paths.
+and the wall time of a 200-point sweep (0.1-20 Hz) with stability and bands.
 
 Times are CPU times of this process (time.process_time; BLAS limited to one thread): on a
 shared machine they are less disturbed by other jobs than wall times; the load average is noted.
@@ -35,12 +35,14 @@ import numpy as np  # noqa: E402
 from machine_info import machine  # noqa: E402
 
 from dea_ros.model import preset, static_equilibrium  # noqa: E402
-from dea_ros.solvers import hbm_kernels  # noqa: E402
-from dea_ros.solvers.continuation import frequency_sweep  # noqa: E402
-from dea_ros.solvers.harmonic_balance import HarmonicBalanceError, solve_native, solve_native_batch  # noqa: E402
+import numba  # noqa: E402
+
+from dea_ros.errors import HarmonicBalanceError  # noqa: E402
+from dea_ros.solvers.newton import solve_native, solve_native_batch  # noqa: E402
 from dea_ros.solvers.inputs import SinePeriodic  # noqa: E402
 from dea_ros.solvers.mousai_backend import solve_mousai  # noqa: E402
 from dea_ros.solvers.steady_state import integrate_to_steady_state  # noqa: E402
+from dea_ros.solvers.sweep import frequency_sweep  # noqa: E402
 
 
 def timed(fn, repeats=1):
@@ -57,16 +59,6 @@ def load() -> str:
     return ", ".join(f"{v:.2f}" for v in os.getloadavg())
 
 
-def on_path(compiled: bool, fn):
-    """fn() with the compiled kernels on or off (off when numba is missing)."""
-    old = hbm_kernels.enabled()
-    hbm_kernels.set_enabled(compiled and hbm_kernels.available())
-    try:
-        return fn()
-    finally:
-        hbm_kernels.set_enabled(old)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="fewer frequencies (smoke run)")
@@ -77,9 +69,7 @@ def main() -> None:
     freqs = np.linspace(0.1, 20.0, n_freq)
     fi_freqs = freqs[:: max(1, n_freq // (4 if args.quick else 10))]
     harmonics = (2, 4, 6, 8)
-    compiled = hbm_kernels.enabled()
-    path = f"compiled kernels (numba {hbm_kernels.numba.__version__})" if compiled else \
-        "numpy (numba not installed or disabled)"
+    path = f"compiled kernels (numba {numba.__version__})"
     lines = [f"Machine: {machine()}; load average at start {load()}", "", f"Native default path: {path}", ""]
     # warm up (numba compiles on first use, or loads its on-disk cache)
     for n in harmonics:
@@ -87,7 +77,7 @@ def main() -> None:
         solve_native(p, SinePeriodic(2500.0, 3.0), n)
 
     # ---- timing, Table V
-    names = ("native", "numpy", "mousai")
+    names = ("native", "mousai")
     times = {(name, n): [] for name in names for n in harmonics}
     failures = {(name, n): 0 for name in names for n in harmonics}
     for n in harmonics:
@@ -95,8 +85,7 @@ def main() -> None:
             inp = SinePeriodic(2500.0, float(f))
             for name in names:
                 solver = solve_mousai if name == "mousai" else solve_native
-                run = (lambda: on_path(False, lambda: solver(p, inp, n, stability=False))) if name == "numpy" \
-                    else (lambda: solver(p, inp, n, stability=False))
+                run = (lambda: solver(p, inp, n, stability=False))  # noqa: E731
                 try:
                     t, _ = timed(run, repeats=1 if name == "mousai" else 3)
                     times[(name, n)].append(t)
@@ -120,24 +109,24 @@ def main() -> None:
     lines += [
         f"### Table V: median CPU time per steady-state solve (A2, 2.5 kV, {n_freq} frequencies 0.1-20 Hz)",
         "",
-        "| N | native HBM [us] | numpy path [us] | batched [us/solve] | batched + Floquet [us/solve] | "
+        "| N | native HBM [us] | batched [us/solve] | batched + Floquet [us/solve] | "
         "batched + Floquet [solves/s] | batched + Floquet, median of 9 [us/solve; solves/s] | mousai HBM [ms] | "
-        "forward integration [s] | native vs mousai | numpy path vs mousai | batched vs mousai | native vs FI | "
+        "forward integration [s] | native vs mousai | batched vs mousai | native vs FI | "
         "failures native / mousai |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for n in harmonics:
         med = {name: (statistics.median(times[(name, n)]) if times[(name, n)] else float("nan")) for name in names}
-        tn, tp, tm = med["native"], med["numpy"], med["mousai"]
+        tn, tm = med["native"], med["mousai"]
         tb, ts = batch_times[n], batch_stab[n]
         lines.append(
-            f"| {n} | {tn * 1e6:.0f} | {tp * 1e6:.0f} | {tb * 1e6:.0f} | {ts * 1e6:.0f} | {1.0 / ts:,.0f} | "
+            f"| {n} | {tn * 1e6:.0f} | {tb * 1e6:.0f} | {ts * 1e6:.0f} | {1.0 / ts:,.0f} | "
             f"{batch_stab_median[n] * 1e6:.0f}; {1.0 / batch_stab_median[n]:,.0f} | {tm * 1e3:.2f} | {fi_median:.2f} | "
-            f"{tm / tn:.0f}x | {tm / tp:.0f}x | {tm / tb:.0f}x | {fi_median / tn:,.0f}x | "
+            f"{tm / tn:.0f}x | {tm / tb:.0f}x | {fi_median / tn:,.0f}x | "
             f"{failures[('native', n)]} / {failures[('mousai', n)]} |"
         )
     lines += ["", "Native: median over the frequencies of the best of 3 single cold solves (each computes its own "
-              "linearised guess), on the default path and on the numpy path; batched: all "
+              "linearised guess); batched: all "
               f"{n_freq} frequencies in one solve_native_batch call, CPU time / {n_freq}, best of 3 (with Floquet: "
               "the multipliers of every solution, as attach_floquet; also the median of 9 calls).",
               f"Forward integration: median over {len(fi_freqs)} of the frequencies "
@@ -150,8 +139,8 @@ def main() -> None:
         fi_ref[f] = integrate_to_steady_state(p, SinePeriodic(2500.0, f), tol=1e-9, rtol=1e-11).displacement_rms(d0)
     lines += ["### Accuracy (eq. 25) against converged forward integration (tol 1e-9)", "",
               "| N | native near resonance (mean / max) | mousai near resonance (mean / max) | "
-              "native away (max) | mousai away (max) | native: default vs numpy path (max difference) |",
-              "|---|---|---|---|---|---|"]
+              "native away (max) | mousai away (max) |",
+              "|---|---|---|---|---|"]
 
     def err(solver, n, fs):
         out = []
@@ -166,11 +155,9 @@ def main() -> None:
     for n in harmonics:
         en, em = err(solve_native, n, near), err(solve_mousai, n, near)
         an, am = err(solve_native, n, away), err(solve_mousai, n, away)
-        numpy_path = on_path(False, lambda: np.concatenate([err(solve_native, n, near), err(solve_native, n, away)]))
-        diff = np.nanmax(np.abs(np.concatenate([en, an]) - numpy_path))
         lines.append(f"| {n} | {np.nanmean(en):.4f} % / {np.nanmax(en):.4f} % | {np.nanmean(em):.3f} % / "
                      f"{np.nanmax(em):.3f} % (failed {np.isnan(em).sum()}) | {np.nanmax(an):.5f} % | "
-                     f"{np.nanmax(am):.4f} % | {diff:.1e} % |")
+                     f"{np.nanmax(am):.4f} % |")
     needed = []
     for f in near + away:
         for n in range(1, 40):
@@ -184,28 +171,17 @@ def main() -> None:
     lines += ["", "Harmonics native HBM needs for <= 0.1 % error: " +
               ", ".join(f"{f:g} Hz: N={n}" for f, n in needed), ""]
 
-    # ---- 200-point sweep with stability and bands, on both paths
+    # ---- 200-point sweep with stability and bands
     grid = np.linspace(0.1, 20, 200)
     lines += ["### 200-point sweep 0.1-20 Hz, N = 8, with Floquet stability, bands and realised responses", "",
-              "| path | CPU time, median of 3 [s] | branch steps | points | folds | bands | resonance peak [Hz] |",
-              "|---|---|---|---|---|---|---|"]
-    sweeps = {}
-    for label, flag in (("compiled kernels", True), ("numpy", False)):
-        if flag and not hbm_kernels.available():
-            continue
-        ts = []
-        for _ in range(3):
-            t, r = timed(lambda: on_path(flag, lambda: frequency_sweep(p, SinePeriodic(2500.0, 0.1), grid,
-                                                                       n_harmonics=8)))
-            ts.append(t)
-        sweeps[label] = r
-        lines.append(f"| {label} | {statistics.median(ts):.3f} | {r.branch_steps} | {len(r.points)} | "
-                     f"{len(r.folds)} | {len(r.bands)} | {r.resonance_peak()['frequency_Hz']:.4f} |")
-    if len(sweeps) == 2:
-        a, b = sweeps.values()
-        lines += ["", f"Largest relative difference of d_rms between the paths over the 200 points: "
-                  f"{np.max(np.abs(a.d_rms_m - b.d_rms_m) / b.d_rms_m):.1e}; bands equal: "
-                  f"{[x.describe() for x in a.bands] == [x.describe() for x in b.bands]}"]
+              "| CPU time, median of 3 [s] | branch steps | points | folds | bands | resonance peak [Hz] |",
+              "|---|---|---|---|---|---|"]
+    ts = []
+    for _ in range(3):
+        t, r = timed(lambda: frequency_sweep(p, SinePeriodic(2500.0, 0.1), grid, n_harmonics=8))
+        ts.append(t)
+    lines.append(f"| {statistics.median(ts):.3f} | {r.branch_steps} | {len(r.points)} | "
+                 f"{len(r.folds)} | {len(r.bands)} | {r.resonance_peak()['frequency_Hz']:.4f} |")
     lines += ["", f"Load average at the end: {load()}", ""]
     text = "\n".join(lines)
     print(text)

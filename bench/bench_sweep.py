@@ -34,7 +34,7 @@ import numpy as np  # noqa: E402
 from machine_info import machine  # noqa: E402
 
 from dea_ros.model import preset, static_equilibrium  # noqa: E402
-from dea_ros.solvers.continuation import frequency_sweep  # noqa: E402
+from dea_ros.solvers.sweep import frequency_sweep  # noqa: E402
 from dea_ros.solvers.inputs import SinePeriodic, SineVoltage  # noqa: E402
 from dea_ros.solvers.integrate import simulate  # noqa: E402
 from dea_ros.solvers.steady_state import (  # noqa: E402

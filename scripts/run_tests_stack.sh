@@ -2,9 +2,9 @@
 # The test suite on the Python stack of a lab PC's ROS 2 distribution (CI runs both, see .ci/run):
 #
 #   scripts/run_tests_stack.sh humble [pytest args]   Python 3.10, numpy 1.21.5, scipy 1.8.0, matplotlib 3.5.1,
-#                                                     PyYAML 5.4.1 (Ubuntu 22.04's apt versions); no ROS 2:
+#                                                     PyYAML 5.4.1, numba 0.55.1 (Ubuntu 22.04's apt versions); no ROS 2:
 #                                                     the node tests skip
-#   scripts/run_tests_stack.sh jazzy [pytest args]    Python 3.12, numpy 1.26.4, scipy 1.11.4 (Ubuntu 24.04's),
+#   scripts/run_tests_stack.sh jazzy [pytest args]    Python 3.12, numpy 1.26.4, scipy 1.11.4, numba 0.59.0 (Ubuntu 24.04's),
 #                                                     matplotlib 3.8.4 (24.04 has 3.6.3, which PyPI has for
 #                                                     Python <= 3.11 only), with Jazzy's rclpy and messages from the
 #                                                     ros-jazzy-* wheels: the whole suite, nodes and rig included
@@ -53,7 +53,7 @@ if ! { [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x "$venv/bin/pyt
     pip install "cython<3" wheel "setuptools<70"
     pip install --no-build-isolation -c "$constraints" PyYAML
   fi
-  pip install -c "$constraints" numpy scipy matplotlib PyYAML pyserial
+  pip install -c "$constraints" numpy scipy matplotlib PyYAML pyserial numba
   if [ "$stack" = jazzy ]; then
     pip install -c "$constraints" -r requirements-ros-wheels-jazzy.txt
   fi
@@ -75,8 +75,8 @@ if bad:
 PY
   echo "$want" > "$stamp"
 fi
-"$venv/bin/python" -c "import sys, numpy, scipy, matplotlib, yaml; print('[stack $stack] Python', sys.version.split()[0], \
-'numpy', numpy.__version__, 'scipy', scipy.__version__, 'matplotlib', matplotlib.__version__, 'PyYAML', yaml.__version__)"
+"$venv/bin/python" -c "import sys, numpy, scipy, matplotlib, yaml, numba; print('[stack $stack] Python', sys.version.split()[0], \
+'numpy', numpy.__version__, 'numba', numba.__version__, 'scipy', scipy.__version__, 'matplotlib', matplotlib.__version__, 'PyYAML', yaml.__version__)"
 export MPLBACKEND=Agg ROS_DISTRO="$stack"
 if [ "$#" -eq 0 ]; then
   set -- -m "not linter"

@@ -32,18 +32,15 @@ if [ -z "${ROS_DISTRO:-}" ]; then
 fi
 pip install --upgrade-strategy only-if-needed -r requirements.txt -r requirements-dev.txt
 pip install --upgrade-strategy only-if-needed -e .
-if [ -z "${ROS_DISTRO:-}" ]; then
-  # the optional compiled kernels (setup.py extra "fast"; a lab PC gets apt's python3-numba by rosdep)
-  pip install --upgrade-strategy only-if-needed "numba>=0.55"
-fi
 "$venv/bin/python" - <<'PY'
 import importlib, sys
-missing = [m for m in ("numpy", "scipy", "yaml", "matplotlib", "mcap", "mcap_ros2", "rclpy", "std_msgs", "sensor_msgs")
+missing = [m for m in ("numpy", "scipy", "yaml", "matplotlib", "mcap", "mcap_ros2", "numba", "rclpy", "std_msgs",
+                        "sensor_msgs")
            if importlib.util.find_spec(m) is None]
 if missing:
     sys.exit(f"[setup] missing after install: {missing}")
-import numpy, scipy, matplotlib
-for mod in (numpy, scipy, matplotlib):
+import numpy, scipy, matplotlib, numba
+for mod in (numpy, scipy, matplotlib, numba):
     where = "the venv" if mod.__file__.startswith(sys.prefix) else "the system (apt)"
     print(f"[setup] {mod.__name__} {mod.__version__} from {where}", file=sys.stderr)
 PY

@@ -31,7 +31,7 @@ ROSDEP_KEYS = {
     # mcap's own dependencies, used for compressed chunks
     "zstandard": "mcap-ros2-support",
     "lz4": "mcap-ros2-support",
-    # optional (see OPTIONAL), but declared for rosdep so that a lab PC gets the compiled kernels
+    # required: the solvers' compiled kernels
     "numba": "python3-numba",
 }
 #: ROS packages of both distributions (ros/rosdistro humble/ and jazzy/distribution.yaml)
@@ -40,9 +40,9 @@ ROS_PACKAGES = {"rclpy", "rcl_interfaces", "builtin_interfaces", "std_msgs", "se
                 "launch", "launch_ros"}
 #: pip distribution of each Python import (setup.py install_requires)
 PIP_NAMES = {"numpy": "numpy", "scipy": "scipy", "yaml": "PyYAML", "matplotlib": "matplotlib", "serial": "pyserial",
-             "mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap", "lz4": "mcap"}
+             "mcap": "mcap", "mcap_ros2": "mcap-ros2-support", "zstandard": "mcap", "lz4": "mcap", "numba": "numba"}
 #: optional: no rosdep key; extras of setup.py, imported only where needed
-OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "numba": "numba", "dask": "dask", "distributed": "distributed",
+OPTIONAL = {"mousai": "mousai", "uldaq": "uldaq", "dask": "dask", "distributed": "distributed",
             "pyarrow": "pyarrow", "tqdm": "tqdm"}
 
 

@@ -15,7 +15,7 @@ import numpy as np
 __all__ = [
     "VoltageSignal", "ConstantVoltage", "StepVoltage", "SineVoltage", "SampledVoltage",
     "PeriodicInput", "SinePeriodic", "SampledPeriodic", "check_voltage", "check_recorded_voltage",
-    "check_harmonics", "MAX_HARMONICS", "MIN_PLAUSIBLE_PEAK_V",
+    "check_harmonics", "MAX_HARMONICS", "MIN_PLAUSIBLE_PEAK_V", "input_groups", "squared_input_rows",
 ]
 
 #: Largest number of harmonics accepted from a user: the harmonic-balance solve (and its Floquet
@@ -294,3 +294,27 @@ class SampledPeriodic(PeriodicInput):
 
     def with_frequency(self, frequency_Hz: float) -> "SampledPeriodic":
         return SampledPeriodic(self.voltage_V, float(frequency_Hz))
+
+
+def input_groups(inputs, divisors) -> tuple:
+    """(codes (B,), [(input, divisor)] per code): items with the same waveform
+    (:meth:`PeriodicInput.waveform_key`; an input without one is its own) and divisor share a code, so
+    that what depends on the waveform only is evaluated once per code."""
+    codes = np.empty(len(inputs), dtype=np.int64)
+    reps, index = [], {}
+    for b, (inp, divisor) in enumerate(zip(inputs, divisors)):
+        key = inp.waveform_key()
+        key = (id(inp) if key is None else key, divisor)
+        code = index.get(key)
+        if code is None:
+            code = index[key] = len(reps)
+            reps.append((inp, divisor))
+        codes[b] = code
+    return codes, reps
+
+
+def squared_input_rows(groups: tuple, phases_for) -> np.ndarray:
+    """u^2 (V^2) of each item of ``groups`` (:func:`input_groups`) at the phases ``phases_for(divisor)``
+    (rad), one row each, evaluated once per code."""
+    codes, reps = groups
+    return np.stack([inp.at_phase(phases_for(divisor)) ** 2 for inp, divisor in reps])[codes]

@@ -15,16 +15,12 @@ import warnings
 
 import numpy as np
 
+from ..errors import HarmonicBalanceError
 from ..model.parameters import MembraneParameters
-from .harmonic_balance import (
-    HarmonicBalanceError,
-    PeriodicSolution,
-    attach_floquet,
-    model_setup,
-    linear_guess,
-    resample_state,
-)
+from .collocation import linear_guess, model_setup, resample_state
+from .floquet import attach_floquet
 from .inputs import PeriodicInput
+from .periodic_solution import PeriodicSolution
 
 __all__ = ["solve_mousai", "mousai_available"]
 

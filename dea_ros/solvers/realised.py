@@ -23,18 +23,16 @@ windows is several per cent in the A2 torus band). Cost: ~5 us per step on plain
 """
 from __future__ import annotations
 
-import functools
 import math
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..model.dynamics import DEAModel
 from ..model.parameters import MembraneParameters
-from . import hbm_kernels
 from .inputs import PeriodicInput
+from .jit import jit
 
 __all__ = ["RealisedResponse", "realised_response", "rk4_periods", "SETTLE_PERIODS", "WINDOW_PERIODS"]
 
@@ -75,6 +73,7 @@ class RealisedResponse:
         }
 
 
+@jit
 def rk4_periods(constants, x0, u2_tab, h, steps, total, d0_m, settle_periods, starts, halves, per_period_ms,
                 per_period_mean):
     """Classical RK4 over ``total`` periods of ``steps`` steps (h s each) from x0, the model of eq. 18.
@@ -82,8 +81,7 @@ def rk4_periods(constants, x0, u2_tab, h, steps, total, d0_m, settle_periods, st
     ``u2_tab`` holds u^2 at the 2 * steps node and midpoint phases of a period. Fills ``starts``
     (total + 1, 3: the state at each period start), ``halves`` (the state half a period in), and,
     after ``settle_periods``, the mean of (d - d0)^2 and of d per period. Returns (period index
-    where d left |d| < 1 m, or -1; the last d). Plain loops: run as it is, or compiled by numba
-    (:func:`hbm_kernels.jit`), with the same results.
+    where d left |d| < 1 m, or -1; the last d). Compiled (:func:`~dea_ros.solvers.jit.jit`).
     """
     l0_sq, kg, c2, k1, rr, eta2, g, b1, b2, b3, g1, g2, g3 = constants
 
@@ -127,21 +125,6 @@ def rk4_periods(constants, x0, u2_tab, h, steps, total, d0_m, settle_periods, st
     return -1, d
 
 
-@functools.lru_cache(maxsize=1)
-def _rk4_compiled():
-    """:func:`rk4_periods` compiled (checked on one step), or itself if this numba cannot compile it."""
-    fn = hbm_kernels.jit(rk4_periods)
-    constants = (2.9e-4, 0.02, -0.019, 4.0e7, 1.07, 3.5e4, 9.81, -2.2e5, -2.3e5, 9.0e5, 5.2e5, -5.0e5, -2.6e5)
-    try:
-        fn(constants, np.array([3e-3, 0.03, 0.0]), np.full(16, 1e6), 1e-3, 8, 1, 0.0, 0, np.empty((2, 3)),
-           np.empty((1, 3)), np.empty(1), np.empty(1))
-    except Exception as exc:  # noqa: BLE001 - an older numba: the same loop in Python
-        warnings.warn(f"dea_ros: numba could not compile the realised-response integration ({type(exc).__name__}); "
-                      "running it in Python (same results, slower)", RuntimeWarning, stacklevel=2)
-        return rk4_periods
-    return fn
-
-
 def realised_response(
     params: MembraneParameters,
     periodic_input: PeriodicInput,
@@ -176,13 +159,8 @@ def realised_response(
     per_period_mean = np.empty(window_periods)
     starts = np.empty((total + 1, 3))
     halves = np.empty((total, 3))
-    if hbm_kernels.enabled():
-        run = _rk4_compiled()
-        u2_arg = np.array(u2_tab)
-    else:
-        run, u2_arg = rk4_periods, u2_tab
-    diverged, d = run(model.constants, np.asarray(x0, float).reshape(3), u2_arg, h, steps, total, float(d0_m),
-                      settle_periods, starts, halves, per_period_ms, per_period_mean)
+    diverged, d = rk4_periods(model.constants, np.asarray(x0, float).reshape(3), np.array(u2_tab), h, steps, total,
+                              float(d0_m), settle_periods, starts, halves, per_period_ms, per_period_mean)
     if diverged >= 0:
         raise FloatingPointError(f"integration diverged at {periodic_input.frequency_Hz:g} Hz (d = {d})")
     rms_each = np.sqrt(per_period_ms)

@@ -1,9 +1,9 @@
 """One front end for the periodic steady state: native HBM, mousai HBM, or forward integration.
 
 ``solve_periodic(params, periodic_input, method=...)`` returns a
-:class:`~dea_ros.solvers.harmonic_balance.PeriodicSolution` whatever the method:
+:class:`~dea_ros.solvers.periodic_solution.PeriodicSolution` whatever the method:
 
-* ``"native"``: :func:`~dea_ros.solvers.harmonic_balance.solve_native` (default),
+* ``"native"``: :func:`~dea_ros.solvers.newton.solve_native` (default),
 * ``"mousai"``: :func:`~dea_ros.solvers.mousai_backend.solve_mousai` (the paper's solver),
 * ``"integration"``: :func:`integrate_to_steady_state`, brute-force forward
   integration from the static equilibrium until the periodic state is reached.
@@ -27,16 +27,13 @@ from scipy.integrate import solve_ivp
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from .harmonic_balance import (
-    SYMMETRY_TOL,
-    PeriodicSolution,
-    attach_floquet,
-    floquet_multipliers,
-    half_period_view,
-    model_setup,
-)
-from .inputs import PeriodicInput
 from ..errors import SteadyStateError
+from .collocation import model_setup
+from .floquet import SYMMETRY_TOL, attach_floquet, floquet_multipliers, half_period_view
+from .inputs import PeriodicInput
+from .mousai_backend import solve_mousai
+from .newton import solve_native
+from .periodic_solution import PeriodicSolution
 
 __all__ = ["solve_periodic", "integrate_to_steady_state", "shoot_periodic_orbit", "SteadyStateError", "METHODS"]
 
@@ -78,38 +75,8 @@ def integrate_to_steady_state(
         u = periodic_input.at_phase(omega * t)
         return np.stack(model.rhs_u2(y[0], y[1], y[2], u * u))
 
-    periods_per_chunk = max(1, int(np.ceil(1.0 / period)))
-    t0 = 0.0
-    boundaries = [x / scale]
-    deltas: list[float] = []
-    ok_streak = 0
-    nfev = 0
-    n_periods = 0
-    last_sol = None
-    while t0 < max_time_s:
-        t1 = t0 + periods_per_chunk * period
-        sol = solve_ivp(fun, (t0, t1), x, method=method, rtol=rtol, atol=atol, dense_output=True)
-        if not sol.success:
-            raise SteadyStateError(f"integration failed at t = {t0:.3f} s: {sol.message}")
-        nfev += sol.nfev
-        for k in range(1, periods_per_chunk + 1):
-            tk = t0 + k * period
-            pk = sol.sol(tk) / scale
-            deltas.append(float(np.max(np.abs(pk - boundaries[-1]))))
-            boundaries.append(pk)
-            n_periods += 1
-            if len(deltas) >= 3:
-                rho = deltas[-1] / deltas[-2] if deltas[-2] > 0 else 0.0
-                est = deltas[-1] * rho / (1.0 - rho) if rho < 1.0 else np.inf
-                est = max(est, deltas[-1] * 1e-3)
-                ok_streak = ok_streak + 1 if est < tol else 0
-                if ok_streak >= 2:
-                    last_sol = (sol, tk - period)
-                    break
-        x = sol.y[:, -1]
-        if last_sol is not None:
-            break
-        t0 = t1
+    last_sol, deltas, nfev, n_periods = _integrate_until_periodic(fun, x, period, scale, tol, rtol, atol,
+                                                                  max_time_s, method)
     if last_sol is None:
         raise SteadyStateError(
             f"no periodic steady state within {max_time_s:g} s simulated at "
@@ -137,6 +104,41 @@ def integrate_to_steady_state(
     return out
 
 
+def _integrate_until_periodic(fun, x, period, scale, tol, rtol, atol, max_time_s, method) -> tuple:
+    """Integrate x' = fun(t, x) in chunks of about 1 s until the Poincare map has converged (module docstring):
+    (dense solution and start of the last period, or None after ``max_time_s``; the scaled changes
+    delta_k of the map; RHS calls; periods integrated)."""
+    periods_per_chunk = max(1, int(np.ceil(1.0 / period)))
+    t0 = 0.0
+    boundaries = [x / scale]
+    deltas: list[float] = []
+    ok_streak = 0
+    nfev = 0
+    n_periods = 0
+    while t0 < max_time_s:
+        t1 = t0 + periods_per_chunk * period
+        sol = solve_ivp(fun, (t0, t1), x, method=method, rtol=rtol, atol=atol, dense_output=True)
+        if not sol.success:
+            raise SteadyStateError(f"integration failed at t = {t0:.3f} s: {sol.message}")
+        nfev += sol.nfev
+        for k in range(1, periods_per_chunk + 1):
+            tk = t0 + k * period
+            pk = sol.sol(tk) / scale
+            deltas.append(float(np.max(np.abs(pk - boundaries[-1]))))
+            boundaries.append(pk)
+            n_periods += 1
+            if len(deltas) >= 3:
+                rho = deltas[-1] / deltas[-2] if deltas[-2] > 0 else 0.0
+                est = deltas[-1] * rho / (1.0 - rho) if rho < 1.0 else np.inf
+                est = max(est, deltas[-1] * 1e-3)
+                ok_streak = ok_streak + 1 if est < tol else 0
+                if ok_streak >= 2:
+                    return (sol, tk - period), deltas, nfev, n_periods
+        x = sol.y[:, -1]
+        t0 = t1
+    return None, deltas, nfev, n_periods
+
+
 def shoot_periodic_orbit(
     params: MembraneParameters,
     periodic_input: PeriodicInput,
@@ -155,7 +157,7 @@ def shoot_periodic_orbit(
     harmonic-balance branches are tested against, also where the orbit is unstable. The result
     samples the orbit at ``samples_per_period`` phases; ``multipliers`` are the eigenvalues of the
     monodromy over T (and, for a T/2-periodic orbit of a T/2-periodic u^2, ``half_period_multipliers``
-    judge its stability, see :func:`~dea_ros.solvers.harmonic_balance.attach_floquet`).
+    judge its stability, see :func:`~dea_ros.solvers.floquet.attach_floquet`).
     Raises :class:`SteadyStateError` when Newton does not converge.
     """
     t_start = time.perf_counter()
@@ -221,13 +223,9 @@ def solve_periodic(
 ) -> PeriodicSolution:
     """Periodic steady state with the chosen method (``native``, ``mousai`` or ``integration``)."""
     if method == "native":
-        from .harmonic_balance import solve_native
-
         return solve_native(params, periodic_input, n_harmonics, x_guess=x_guess,
                             stability=stability, **options)
     if method == "mousai":
-        from .mousai_backend import solve_mousai
-
         return solve_mousai(params, periodic_input, n_harmonics, x_guess=x_guess,
                             stability=stability, **options)
     if method == "integration":

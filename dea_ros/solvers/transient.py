@@ -399,21 +399,8 @@ class TransientCollocation:
         x0 = np.asarray(x0, float).reshape(3)
         scale = self.state_scale(params, x0)
         theta = np.log([params.k1_Pa, params.eta1_Pa_s, max(params.eta2_Pa_s, 1e-300)])
-        guesses = []
-        if nodes_guess is not None:
-            guesses.append(("given", np.asarray(nodes_guess, float).reshape(3, -1)))
-        elif warm_start and self._last_nodes is not None:
-            guess = self._last_nodes
-            if self._last_sens is not None and self._last_static == _static_key(params):
-                # First-order predictor from the last sensitivities: Newton then needs ~2 iterations.
-                dtheta = theta - self._last_theta
-                if np.all(np.abs(dtheta) < 1.0):
-                    guess = guess + np.tensordot(dtheta, self._last_sens, axes=1)
-                    guess[:, 0] = x0
-            guesses.append(("warm", guess))
-        guesses.append(("quasi-static", None))
         failure = ""
-        for kind, nodes in guesses:
+        for kind, nodes in self._guesses(params, x0, theta, nodes_guess, warm_start):
             if nodes is None:
                 nodes = self.quasi_static_guess(params, x0)
             try:
@@ -428,26 +415,8 @@ class TransientCollocation:
             )
         sens = None
         if sensitivities:
-            # Factorise the Jacobian at the converged point: exact sensitivities.
-            lu, piv, info = dgbtrf(ab, _KL, _KU)
-            if info != 0:
-                raise TransientError(f"singular collocation Jacobian (LAPACK info {info})")
-            dx0 = None
-            if (stress_directions is not None or permittivity) and rest:
-                parts = []
-                if stress_directions is not None:
-                    parts.append(rest_state_derivative(params, float(self.voltage_V[0]), stress_directions,
-                                                       displacement_m=float(x0[0])))
-                if permittivity:
-                    parts.append(rest_state_permittivity_derivative(params, float(self.voltage_V[0]),
-                                                                    displacement_m=float(x0[0])))
-                dx0 = np.concatenate(parts, axis=0)
-            rhs = self._parameter_derivative(model, nodes, mid, scale, stress_directions, dx0, permittivity)
-            dz, info = dgbtrs(lu, _KL, _KU, -rhs, piv)
-            if info != 0:
-                raise TransientError(f"band back-substitution failed (LAPACK info {info})")
-            dz = dz.reshape(self.n_intervals + 1, 3, -1)  # node, component, param
-            sens_nodes = np.transpose(dz, (2, 1, 0)) * scale[None, :, None]
+            sens_nodes = self._node_sensitivities(params, model, nodes, ab, mid, x0, scale, stress_directions,
+                                                  permittivity, rest)
             sens = sens_nodes[:, :, self.sample_nodes]
         self._last_nodes = nodes
         self._last_sens = sens_nodes[:3] if sensitivities else None
@@ -461,6 +430,47 @@ class TransientCollocation:
             wall_time_s=time.perf_counter() - t_start,
             nodes=nodes,
         )
+
+    def _guesses(self, params, x0, theta, nodes_guess, warm_start) -> list:
+        """The starting trajectories to try, in order: [(kind, nodes (3, N+1) or None for quasi-static)]."""
+        guesses = []
+        if nodes_guess is not None:
+            guesses.append(("given", np.asarray(nodes_guess, float).reshape(3, -1)))
+        elif warm_start and self._last_nodes is not None:
+            guess = self._last_nodes
+            if self._last_sens is not None and self._last_static == _static_key(params):
+                # First-order predictor from the last sensitivities: Newton then needs ~2 iterations.
+                dtheta = theta - self._last_theta
+                if np.all(np.abs(dtheta) < 1.0):
+                    guess = guess + np.tensordot(dtheta, self._last_sens, axes=1)
+                    guess[:, 0] = x0
+            guesses.append(("warm", guess))
+        guesses.append(("quasi-static", None))
+        return guesses
+
+    def _node_sensitivities(self, params, model, nodes, ab, mid, x0, scale, stress_directions, permittivity,
+                            rest) -> np.ndarray:
+        """d nodes / d theta (3 + q [+ 1], 3, N+1) at the converged trajectory: the Jacobian factorised there,
+        dX/dtheta = -J^-1 dR/dtheta (the rest state moves with the stress directions and eps_r when ``rest``)."""
+        lu, piv, info = dgbtrf(ab, _KL, _KU)
+        if info != 0:
+            raise TransientError(f"singular collocation Jacobian (LAPACK info {info})")
+        dx0 = None
+        if (stress_directions is not None or permittivity) and rest:
+            parts = []
+            if stress_directions is not None:
+                parts.append(rest_state_derivative(params, float(self.voltage_V[0]), stress_directions,
+                                                   displacement_m=float(x0[0])))
+            if permittivity:
+                parts.append(rest_state_permittivity_derivative(params, float(self.voltage_V[0]),
+                                                                displacement_m=float(x0[0])))
+            dx0 = np.concatenate(parts, axis=0)
+        rhs = self._parameter_derivative(model, nodes, mid, scale, stress_directions, dx0, permittivity)
+        dz, info = dgbtrs(lu, _KL, _KU, -rhs, piv)
+        if info != 0:
+            raise TransientError(f"band back-substitution failed (LAPACK info {info})")
+        dz = dz.reshape(self.n_intervals + 1, 3, -1)  # node, component, param
+        return np.transpose(dz, (2, 1, 0)) * scale[None, :, None]
 
     def _newton(self, model, nodes, x0, scale):
         res, ab, mid = self._evaluate(model, nodes, x0, scale)

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers.continuation import frequency_sweep, sweep_independent
-from dea_ros.solvers.harmonic_balance import solve_native
+from dea_ros.solvers.newton import solve_native
 from dea_ros.solvers.inputs import SinePeriodic, SineVoltage
 from dea_ros.solvers.integrate import simulate
 from dea_ros.solvers.mousai_backend import mousai_available
 from dea_ros.solvers.realised import realised_response
 from dea_ros.solvers.steady_state import integrate_to_steady_state, shoot_periodic_orbit
+from dea_ros.solvers.sweep import frequency_sweep, sweep_independent
 
 GRID = np.linspace(0.1, 20.0, 200)
 

@@ -3,16 +3,15 @@ import numpy as np
 import pytest
 
 from dea_ros.model import DEAModel, preset, static_equilibrium
-from dea_ros.solvers.harmonic_balance import (
+from dea_ros.errors import HarmonicBalanceError
+from dea_ros.solvers.collocation import (
     CollocationSystem,
-    HarmonicBalanceError,
-    model_setup,
-    classify_stability,
-    floquet_multipliers,
     fourier_differentiation_matrix,
+    model_setup,
     periodic_interpolation_matrix,
-    solve_native,
 )
+from dea_ros.solvers.floquet import classify_stability, floquet_multipliers
+from dea_ros.solvers.newton import solve_native, solve_native_batch
 from dea_ros.solvers.inputs import SampledPeriodic, SinePeriodic
 from dea_ros.solvers.mousai_backend import mousai_available, solve_mousai
 from dea_ros.solvers.steady_state import integrate_to_steady_state, solve_periodic
@@ -153,8 +152,6 @@ def test_front_end_methods_and_errors(a2):
 
 
 def test_batch_solver_equals_single_solves(a2):
-    from dea_ros.solvers.harmonic_balance import solve_native_batch
-
     inputs = [SinePeriodic(2500.0, f) for f in (0.5, 4.0, 9.0, 14.0, 19.0)]
     batch = solve_native_batch(a2, inputs, n_harmonics=6, stability=True)
     for inp, b in zip(inputs, batch):

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from dea_ros.model import preset
-from dea_ros.solvers.continuation import Bifurcation, frequency_sweep, stability_segments
+from dea_ros.solvers.sweep import frequency_sweep
+from dea_ros.solvers.sweep_results import Bifurcation, stability_segments
 from dea_ros.solvers.inputs import SinePeriodic
 
 
