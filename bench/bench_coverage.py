@@ -37,8 +37,8 @@ from machine_info import machine  # noqa: E402
 from dea_ros.identify.pipeline import identify  # noqa: E402
 from dea_ros.identify.static_fit import EXTENDED_COMBINATION_MATRIX  # noqa: E402
 from dea_ros.identify.synth import synthesize_experiments  # noqa: E402
-from dea_ros.solvers.continuation import frequency_sweep  # noqa: E402
 from dea_ros.solvers.inputs import SinePeriodic  # noqa: E402
+from dea_ros.solvers.sweep import frequency_sweep  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test" / "identify"))
 from conftest import PAPER_FREQUENCIES_HZ, UNLIKE, UNLIKE_FREQUENCIES_HZ, UNLIKE_SERIES_HZ  # noqa: E402

@@ -104,7 +104,7 @@ BAND_COLOURS = {"period-doubled": "tab:orange", "quasi-periodic": "tab:red", "co
 
 def plot_sweep(result, name: str, args) -> None:
     """Realised response (markers), branches (lines: solid stable, dotted unstable), shaded bands."""
-    from ..solvers.continuation import stability_segments
+    from ..solvers.sweep_results import stability_segments
 
     plt = matplotlib_pyplot()
     fig, ax = plt.subplots(figsize=(8, 5))

@@ -3,7 +3,7 @@
 Each sine record is classified twice: what the record shows from its samples (periodic at T/2,
 period-doubled, quasi-periodic, not settled; :meth:`~dea_ros.identify.experiments.SineSeries.classify`)
 and what the model at the current parameters realises there
-(:func:`~dea_ros.solvers.continuation.frequency_sweep`: the branch a slow upward sweep is on, the
+(:func:`~dea_ros.solvers.sweep.frequency_sweep`: the branch a slow upward sweep is on, the
 period-doubled branch in a period-doubling band, quasi-periodic in a torus band; with coexisting
 responses the one nearest the measured RMS). Each record is then fitted with the matching periodic
 solution (the T/2 orbit or a period-doubled one) or left out, with the reason.
@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.parameters import MembraneParameters
-from ..solvers.continuation import PRIMARY, frequency_sweep
+from ..solvers.sweep import frequency_sweep
+from ..solvers.sweep_results import PRIMARY
 from ..solvers.inputs import SinePeriodic
 from .experiments import ExperimentSet
 from .frequency_points import FrequencyPoint

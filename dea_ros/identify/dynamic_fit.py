@@ -33,7 +33,7 @@ from ..errors import DynamicFitError
 from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import HarmonicBalanceError
+from ..errors import HarmonicBalanceError
 from ..solvers.steady_state import SteadyStateError
 from ..solvers.transient import TransientError
 from .dynamic_objective import CURVATURE_UNIT_PA, PAPER_WEIGHTS, DynamicObjective

@@ -14,7 +14,7 @@ Simulations per objective evaluation
   Hermite-Simpson collocation on the sample grid, ~1 nm from DOP853), warm-started
   from the previous evaluation, with exact sensitivities d d(t_j)/d ln(k1, eta1, eta2).
 * frequency response, ``frequency_method="hbm"`` (default): native harmonic balance
-  (:func:`~dea_ros.solvers.harmonic_balance.solve_native`), continued from the previous
+  (:func:`~dea_ros.solvers.newton.solve_native`), continued from the previous
   evaluation's solution at the same frequency, with the exact sensitivity of d_rms
   from the collocation Jacobian (implicit function theorem: dX/dtheta = -J^-1 dR/dtheta).
 * ``frequency_method="integration"``: forward integration from rest to the periodic
@@ -42,7 +42,8 @@ import numpy as np
 from ..errors import DynamicFitError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import HarmonicBalanceError, PeriodicSolution
+from ..errors import HarmonicBalanceError
+from ..solvers.periodic_solution import PeriodicSolution
 from ..solvers.inputs import SinePeriodic
 from ..solvers.steady_state import integrate_to_steady_state
 from ..solvers.transient import TransientCollocation, rest_state_derivative

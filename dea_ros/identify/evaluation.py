@@ -18,7 +18,7 @@ import numpy as np
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import HarmonicBalanceError
+from ..errors import HarmonicBalanceError
 from ..solvers.inputs import SampledVoltage
 from ..solvers.integrate import simulate
 from ..solvers.transient import TransientCollocation

@@ -15,7 +15,10 @@ import numpy as np
 
 from ..model.dynamics import DEAModel
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import CollocationSystem, HarmonicBalanceError, PeriodicSolution, solve_native
+from ..errors import HarmonicBalanceError
+from ..solvers.collocation import CollocationSystem
+from ..solvers.newton import solve_native
+from ..solvers.periodic_solution import PeriodicSolution
 from ..solvers.inputs import SinePeriodic
 from ..solvers.transient import rhs_log_parameter_derivative, rhs_permittivity_derivative, rhs_stress_derivative
 

@@ -47,7 +47,7 @@ from scipy.optimize import least_squares
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.harmonic_balance import HarmonicBalanceError
+from ..errors import HarmonicBalanceError
 from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
 from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m

@@ -49,7 +49,7 @@ import numpy as np
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..solvers.continuation import frequency_sweep
+from ..solvers.sweep import frequency_sweep
 from ..solvers.inputs import PeriodicInput, SinePeriodic, SineVoltage, StepVoltage
 from ..solvers.integrate import simulate
 from ..solvers.realised import SETTLE_PERIODS, realised_response

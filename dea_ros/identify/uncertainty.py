@@ -7,10 +7,10 @@ stress combinations sigma_h(1), sigma_h'(1)[, sigma_h''(1), sigma_h'''(1)] of eq
 the final fit had), mapped to membranes (the stress combinations through the Ogden
 representation closest to the identified beta/gamma, as the joint fit writes them). For each
 sample the frequency response is one batched harmonic-balance solve over the grid
-(:func:`~dea_ros.solvers.harmonic_balance.solve_native_batch`) started from the identified
+(:func:`~dea_ros.solvers.newton.solve_native_batch`) started from the identified
 model's solutions of a continuation sweep (the T/2 branch a slow upward sweep follows), and its
 resonance peak is located on the branch by a short continuation sweep around the identified
-peak (:func:`~dea_ros.solvers.continuation.frequency_sweep`, without the Floquet analysis). The
+peak (:func:`~dea_ros.solvers.sweep.frequency_sweep`, without the Floquet analysis). The
 band at each frequency is the central ``confidence`` interval of the samples; the peak gets the
 same interval for its frequency and its RMS.
 
@@ -28,8 +28,9 @@ import numpy as np
 
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters, ParameterError
-from ..solvers.continuation import frequency_sweep
-from ..solvers.harmonic_balance import HarmonicBalanceError, solve_native_batch
+from ..solvers.sweep import frequency_sweep
+from ..errors import HarmonicBalanceError
+from ..solvers.newton import solve_native_batch
 from ..solvers.inputs import SinePeriodic
 from .experiments import ExperimentSet
 from .metrics import ParameterStatistics

@@ -156,7 +156,8 @@ def state_equation(constants, d, eps1, v, u2):
 
     Returns ``(f, J)``: f a tuple of 3, J nested tuples J[i][j] (row i = equation), each of the
     shape of d. Plain arithmetic only, so that the same function runs on floats, on numpy arrays
-    and compiled by numba (:mod:`dea_ros.solvers.hbm_kernels`).
+    and compiled by numba (:mod:`dea_ros.solvers.collocation_kernels`,
+    :mod:`dea_ros.solvers.floquet_kernels`).
     """
     l0_sq, kg, c2, k1, a, eta2, g, b1, b2, b3, g1, g2, g3 = constants
     q = d * d / l0_sq

@@ -28,8 +28,7 @@ pointing down the list (a module uses only those above it):
 
 Why the kernel modules are apart from their Python modules: numba compiles a module's kernels
 from its source and caches them keyed to that file, and the Python side (result types, fallbacks,
-messages) changes far more often than the loops. ``harmonic_balance`` and ``continuation`` are
-TRANSITIONAL re-exports of their old contents.
+messages) changes far more often than the loops.
 """
 from ..errors import HarmonicBalanceError, SteadyStateError
 from .inputs import (

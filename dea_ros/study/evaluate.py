@@ -2,7 +2,7 @@
 
 Each design is a base membrane with some fields replaced and an excitation. Its row holds the
 varied values, the static stroke over the voltage range (eq. 20), the resonance peak of the
-frequency sweep (located on the branch, :meth:`~dea_ros.solvers.continuation.SweepResult.resonance_peak`),
+frequency sweep (located on the branch, :meth:`~dea_ros.solvers.sweep_results.SweepResult.resonance_peak`),
 the folds, the bifurcations by kind and the bands of the realised response (torus =
 quasi-periodic, period-doubled, coexisting) with their total widths, or a failure with its
 reason:
@@ -14,7 +14,7 @@ reason:
 * ``invalid parameters``: the design is not a valid or plausible membrane (e.g. f_max <= f_min);
 * ``error``: anything else (the message says what; the study goes on).
 
-The sweep is the public :func:`~dea_ros.solvers.continuation.frequency_sweep`, so any speed-up
+The sweep is the public :func:`~dea_ros.solvers.sweep.frequency_sweep`, so any speed-up
 of the solver reaches the study unchanged. Rows have a fixed set of columns (:data:`COLUMNS`);
 lists (folds, bands) are JSON text so that CSV and Parquet hold the same values.
 """

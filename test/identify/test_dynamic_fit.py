@@ -10,7 +10,7 @@ from dea_ros.identify.experiments import SineData
 from dea_ros.identify.frequency_points import FrequencyPoint
 from dea_ros.identify.static_fit import OgdenRepresentation
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers.harmonic_balance import solve_native
+from dea_ros.solvers.newton import solve_native
 from dea_ros.solvers.inputs import SinePeriodic
 
 

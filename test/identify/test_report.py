@@ -11,7 +11,7 @@ from dea_ros.identify.experiments import SineSeries
 from dea_ros.identify.evaluation import series_model
 from dea_ros.identify.report import write_report
 from dea_ros.model import MembraneParameters, preset
-from dea_ros.solvers.continuation import frequency_sweep
+from dea_ros.solvers.sweep import frequency_sweep
 from dea_ros.solvers.inputs import SinePeriodic, SineVoltage
 from dea_ros.solvers.steady_state import shoot_periodic_orbit
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers.continuation import frequency_sweep
+from dea_ros.solvers.sweep import frequency_sweep
 from dea_ros.solvers.inputs import SinePeriodic
 
 NOISE_M = 1e-6  # the laser noise of the conftest data sets

@@ -14,7 +14,7 @@ from dea_ros.identify.experiments import SineSeries, period_weights, rms_statist
 from dea_ros.identify.report import write_report
 from dea_ros.identify.static_fit import EXTENDED_COMBINATION_MATRIX
 from dea_ros.model import MembraneParameters
-from dea_ros.solvers.continuation import frequency_sweep
+from dea_ros.solvers.sweep import frequency_sweep
 from dea_ros.solvers.inputs import SinePeriodic
 
 from .conftest import UNLIKE

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...solvers.continuation import stability_segments
+from ...solvers.sweep_results import stability_segments
 from ..result import IdentificationResult
 
 __all__ = ["plot_static", "plot_steps", "plot_frequency", "plot_sine_series", "KIND_MARKERS"]

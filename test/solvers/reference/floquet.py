@@ -22,7 +22,7 @@ def _mm3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _expm3(mats: np.ndarray) -> np.ndarray:
     """exp of component-wise 3x3 matrices (3, 3, ...) with norm <= ~1: the [6/6] Pade approximant
-    (V - U)^-1 (V + U) of the compiled :func:`hbm_kernels._expm9` (same coefficients, same formulas)."""
+    (V - U)^-1 (V + U) of the compiled ``floquet_kernels._expm9`` (same coefficients, same formulas)."""
     b0, b1, b2, b3, b4, b5, b6 = PADE6
     eye = np.zeros_like(mats)
     eye[0, 0] = eye[1, 1] = eye[2, 2] = 1.0
