@@ -67,7 +67,7 @@ class TimedLoop:
     def __init__(self, ctl: PositionController, stream):
         self.ctl, self.stream = ctl, list(stream)
         self.k = 0
-        self.sample_s, self.setpoint_s, self.sample_cpu_s = [], [], []
+        self.sample_s, self.setpoint_s, self.sample_cpu_s, self.setpoint_cpu_s = [], [], [], []
         self.accepted = self.refused = self.planned = self.plan_refused = 0
 
     def __call__(self, t, m):
@@ -75,13 +75,14 @@ class TimedLoop:
         if not ctl.started:
             ctl.start(t, m)
         while self.k < len(self.stream) and self.stream[self.k][0] <= t:
-            t0 = time.perf_counter()
+            c0, t0 = time.thread_time(), time.perf_counter()
             try:
                 ctl.request_setpoint(t, self.stream[self.k][1])
                 self.accepted += 1
             except UnreachableReferenceError:
                 self.refused += 1
             self.setpoint_s.append(time.perf_counter() - t0)
+            self.setpoint_cpu_s.append(time.thread_time() - c0)
             self.k += 1
         c0, t0 = time.thread_time(), time.perf_counter()
         out = ctl.update(t, m)
@@ -133,7 +134,9 @@ def main() -> None:
     wall = time.perf_counter()
     res = run_closed_loop(rig, loop, args.minutes * 60.0, initial_voltage_V=u0)
     wall = time.perf_counter() - wall
+    c0 = time.thread_time()
     sync = synchronous_plans(PositionController(model, cfg), stream)
+    sync_cpu = time.thread_time() - c0
     print(f"machine: {machine()}; load average {open('/proc/loadavg').read().split()[:3]}")
     print(f"stream: {args.minutes:g} min simulated, {len(stream)} setpoints (seed {args.seed}); wall {wall:.0f} s; "
           f"reachable {lo * 1e6:.1f}-{hi * 1e6:.1f} um, usable {ctl.usable_range_m[0] * 1e6:.1f}-"
@@ -142,8 +145,10 @@ def main() -> None:
           f"plans: {loop.planned} moves, {loop.plan_refused} refused after planning")
     print(f"sample callback (update), wall: {stats_ms(loop.sample_s)}")
     print(f"sample callback (update), CPU:  {stats_ms(loop.sample_cpu_s)} (thread time: without preemption)")
-    print(f"setpoint callback (request):     {stats_ms(loop.setpoint_s)}")
-    print(f"synchronous plan (set_setpoint): {stats_ms(sync)}")
+    print(f"setpoint callback (request), wall: {stats_ms(loop.setpoint_s)}")
+    print(f"setpoint callback (request), CPU:  {stats_ms(loop.setpoint_cpu_s)}")
+    print(f"synchronous plan (set_setpoint), wall: {stats_ms(sync)}; CPU in total {sync_cpu:.2f} s "
+          f"({sync_cpu / len(stream) * 1e3:.2f} ms per setpoint)")
     true_d = res.true_m
     eq = static_equilibrium(truth, [0.0, U_MAX]).displacement_m
     print(f"plant: true displacement {true_d.min() * 1e6:.1f}-{true_d.max() * 1e6:.1f} um "
