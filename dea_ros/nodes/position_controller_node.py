@@ -267,13 +267,13 @@ class PositionControllerNode(LifecycleNode):
             return
         target = float(msg.data)
         try:       # answered at once: clamped at the ends or refused with the range; planned by the loop
-            target, note = self.ctl.clamp_setpoint(target)
-            if not self.ctl.started:       # applied when the first (plausible) laser sample arrives
-                self.pending_setpoint = target
-                self._accept(f"setpoint {target * 1e6:.1f} um pending until the laser streams"
-                             + (f" ({note})" if note else ""))
+            if self.ctl.started:
+                self._accept(self.ctl.request_setpoint(self._ref_time(), target))
                 return
-            self._accept(self.ctl.request_setpoint(self._ref_time(), target))
+            target, note = self.ctl.clamp_setpoint(target)   # applied when the first plausible sample arrives
+            self.pending_setpoint = target
+            self._accept(f"setpoint {target * 1e6:.1f} um pending until the laser streams"
+                         + (f" ({note})" if note else ""))
         except UnreachableReferenceError as exc:
             self._refuse("setpoint", exc)
 
