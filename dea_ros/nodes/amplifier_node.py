@@ -310,7 +310,7 @@ class AmplifierNode(LifecycleNode):
         check_V = min(float(c["gain_check_V"]), lim.max_voltage_V)
         settle_s = max(float(c["gain_check_settle_s"]), 3.0 * self.update_period_s)
         return GainLoopCheck(check_V, float(c["gain_check_tolerance_fraction"]), settle_s,
-                             timeout_s=check_V / lim.slew_rate_V_per_s + settle_s + 1.0,
+                             timeout_s=check_V / min(lim.slew_rate_V_per_s, 1000.0) + settle_s + 1.0,
                              amplifier_gain_V_per_V=self.expected.amplifier_gain_V_per_V,
                              monitor_gain_V_per_V=float(self.expected.monitor_gain_V_per_V))
 
@@ -452,7 +452,7 @@ class AmplifierNode(LifecycleNode):
             return
         t = self._control_time(source)
         if self.gain_check is not None:
-            self.controller.command(self.gain_check.command_V, t)   # through the limits (ceiling, slew)
+            self.controller.command(self.gain_check.command_at(t), t)   # through the limits (ceiling, slew)
         u = self.controller.update(t)
         if not self.write(u):
             self.enter_fault(f"backend write failed: {self.backend_fault}")

@@ -71,8 +71,9 @@ def test_gain_slip_with_monitor_faults_during_the_loop_check(ros_context, board,
     try:
         assert amp.fault_reason is not None and "gain loop check failed" in amp.fault_reason
         assert "monitor reads" in amp.fault_reason and "ratio" in amp.fault_reason   # the numbers
-        # no higher command was followed: the real output never exceeded the check voltage x the slip
-        assert highest <= 40.0 * real_gain / 1000.0 + 1e-6
+        # no higher command was followed: the real output never exceeded the check voltage x the slip, and a x10
+        # slip is stopped on the check's ramp at a few volts written (the continuous monitor comparison)
+        assert highest <= min(40.0 * real_gain / 1000.0, 100.0) + 1e-6
         assert amp.controller.output_V == 0.0 and board.amplifier_output_V == 0.0
         assert not board.amplifier_enabled
         assert amp.gain_check_rejections > 0

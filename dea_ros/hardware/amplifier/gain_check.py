@@ -4,9 +4,10 @@ A slip in ``amplifier_gain_V_per_V`` (100 configured on a 1000 V/V amplifier: ev
 on the membrane) cannot be seen from the command side. With the amplifier's voltage monitor wired
 (and its gain a separate, required setting: a monitor gain defaulting to the amplifier gain would
 scale with the same slip and agree), amplifier_node runs :class:`GainLoopCheck` on every
-activation before it follows any command: it commands ``check_V`` (a few tens of volts, through
-the safety controller, so the ceiling and the slew limit apply), waits until the output has been
-there for ``settle_s`` and compares the monitor with it. A ratio outside
+activation before it follows any command: it ramps its command to ``check_V`` (a few tens of
+volts) at ``ramp_V_per_s`` (through the safety controller, so the ceiling and the slew limit apply;
+slowly, so that the node's continuous monitor comparison stops a x10 slip at a few volts written),
+waits until the output has been there for ``settle_s`` and compares the monitor with it. A ratio outside
 [1 - tolerance, 1 + tolerance] (x0.1 and x10 slips are far outside) fails with the numbers; the
 node then faults to 0 V. A monitor that agrees proves the DAQ volts x the real gain = the volts
 the controller meant (up to the monitor's own calibration, checked once with a meter: README,
@@ -43,10 +44,10 @@ class GainLoopCheck:
     """
 
     def __init__(self, check_V: float, tolerance_fraction: float, settle_s: float, timeout_s: float,
-                 amplifier_gain_V_per_V: float, monitor_gain_V_per_V: float):
+                 amplifier_gain_V_per_V: float, monitor_gain_V_per_V: float, ramp_V_per_s: float = 1000.0):
         for name, value in (("check_V", check_V), ("settle_s", settle_s), ("timeout_s", timeout_s),
                             ("amplifier_gain_V_per_V", amplifier_gain_V_per_V),
-                            ("monitor_gain_V_per_V", monitor_gain_V_per_V)):
+                            ("monitor_gain_V_per_V", monitor_gain_V_per_V), ("ramp_V_per_s", ramp_V_per_s)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name}: must be a positive number, got {value!r}")
         if not 0.0 < tolerance_fraction < 1.0:
@@ -56,14 +57,16 @@ class GainLoopCheck:
         self.settle_s = float(settle_s)
         self.timeout_s = float(timeout_s)
         self.gains = (float(amplifier_gain_V_per_V), float(monitor_gain_V_per_V))
+        self.ramp_V_per_s = float(ramp_V_per_s)
         self.started_s: float | None = None
         self.reached_s: float | None = None
         self.result: GainCheckResult | None = None
 
-    @property
-    def command_V(self) -> float:
-        """What the node commands while the check runs (V)."""
-        return self.check_V
+    def command_at(self, t_s: float) -> float:
+        """What the node commands at time t while the check runs (V): the ramp to ``check_V``."""
+        if self.started_s is None:
+            self.started_s = float(t_s)
+        return min(self.check_V, self.ramp_V_per_s * (t_s - self.started_s))
 
     def observe(self, t_s: float, output_V: float, monitor_V: float | None) -> GainCheckResult | None:
         """One update: the output written (V) and the monitor read (V, None: none) at time t (s)."""
