@@ -355,7 +355,7 @@ class PositionControllerNode(LifecycleNode):
         if not self.ctl.plausible_start(d):
             self.implausible_starts += 1
             self.get_logger().warning(f"not (re)starting on the implausible measurement {d * 1e6:.1f} um",
-                                   throttle_duration_sec=1.0)
+                                      throttle_duration_sec=1.0)
             return False
         held = self.ctl.start(t, d)
         self.state = "tracking"
