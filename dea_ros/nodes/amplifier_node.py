@@ -299,9 +299,11 @@ class AmplifierNode(LifecycleNode):
             self.get_logger().info(f"active: gain loop check at {self.gain_check.check_V:.1f} V before following "
                                    "voltage_cmd")
             return super().on_activate(state)
-        self.gain_status = unverified_gain_note(self.expected.amplifier_gain_V_per_V)
         if self.expected.backend == "uldaq":
+            self.gain_status = unverified_gain_note(self.expected.amplifier_gain_V_per_V)
             self.get_logger().warning(self.gain_status)
+        else:
+            self.gain_status = f"no gain stage (backend {self.expected.backend}: volts are sent as volts)"
         self.get_logger().info("active: following voltage_cmd")
         return super().on_activate(state)
 
