@@ -26,7 +26,9 @@ from .reference import (
     SineReference,
     Trajectory,
     check_trajectory,
+    plan_checks,
     plan_move,
+    plan_move_steps,
     trajectory_from_points,
 )
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
@@ -35,6 +37,6 @@ __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
     "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
-    "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
+    "plan_move_steps", "plan_checks", "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
 ]

@@ -17,18 +17,30 @@ Per sample (t_k the acquisition time of the measurement d_k):
 Setpoints are shaped by :func:`plan_move` (fastest feasible quintic from the current reference
 state, never shorter than ``min_move_time_s``); trajectories are checked by
 :func:`check_trajectory` and refused with the reason when the actuator cannot follow them.
+
+The ends of the range (issue 20): a setpoint more than ``end_tolerance_m`` beyond the reachable
+range [d(0 V), d(u_max)] is refused at once with the range in the message; one inside that band is
+clamped to the *usable* range, where the static u^2 keeps ``end_margin_fraction`` of u_max^2 from
+0 and from u_max^2 (the feedback's headroom: at d(0 V) it could only pull, at d(u_max) only
+release). :meth:`PositionController.request_setpoint` plans without blocking: the setpoint is
+answered at once (clamped or refused) and :meth:`update` runs one feasibility check of the
+planner per sample (:func:`plan_move_steps`, at most :func:`plan_checks`), the current reference
+held meanwhile; the move starts when that many samples have passed.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from ..errors import SafetyConfigError
 from ..hardware.amplifier.limits import membrane_voltage_limit_V
 from ..model import MembraneParameters
 from .feedback import FeedbackGains, PIDOnU2, design_gains
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
-from .reference import Hold, Trajectory, check_trajectory, plan_move
+from .reference import Hold, QuinticMove, Trajectory, check_trajectory, plan_checks, plan_move, plan_move_steps
 
 __all__ = ["ControllerConfig", "ControlOutput", "PositionController"]
 
@@ -49,6 +61,9 @@ class ControllerConfig:
     feedforward_slew_fraction: float = 0.9    # share of the slew limit a reference may use
     operating_point_m: float | None = None    # gain design point (default: mid-range)
     feedforward_lead_s: float | None = None   # default: loop_delay_s + sample_period_s / 2
+    end_margin_fraction: float = 0.05         # u^2 headroom kept at each end of the range (share of u_max^2)
+    end_tolerance_m: float = 2e-6             # setpoints this far beyond the reachable range are clamped
+    start_tolerance_fraction: float = 0.25    # a (re)start needs a measurement within this share of the range
 
     def __post_init__(self):
         for name in ("max_voltage_V", "slew_rate_V_per_s", "sample_period_s", "min_move_time_s",
@@ -60,6 +75,12 @@ class ControllerConfig:
             raise ValueError(f"loop_delay_s: must be >= 0 s, got {self.loop_delay_s!r}")
         if self.feedforward_slew_fraction > 1.0:
             raise ValueError("feedforward_slew_fraction: must be in (0, 1]")
+        if not (0.0 <= self.end_margin_fraction < 0.5):
+            raise ValueError(f"end_margin_fraction: must be in [0, 0.5), got {self.end_margin_fraction!r}")
+        for name in ("end_tolerance_m", "start_tolerance_fraction"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: must be >= 0, got {v!r}")
 
     @classmethod
     def for_membrane(cls, params: MembraneParameters, margin: float, max_voltage_V: float = 0.0,
@@ -100,6 +121,17 @@ class ControlOutput:
 
 
 @dataclass
+class _Plan:
+    """A setpoint being planned: one check per sample, the move starting at ``start_s``."""
+
+    target_m: float
+    start_s: float
+    eps1: float                       # the reference's eps1 at start_s
+    steps: object                     # the plan_move_steps generator
+    retry: bool = False               # refused: plan again from the end of the running move
+
+
+@dataclass
 class _State:
     trajectory: Trajectory
     t_ff: float                       # time of the strain integrator (reference time, s)
@@ -124,6 +156,13 @@ class PositionController:
         self.pid = PIDOnU2(self.gains)
         self.strain: StrainIntegrator | None = None
         self.state: _State | None = None
+        umax2 = self.max_voltage_V ** 2
+        frac = config.end_margin_fraction
+        self.usable_range_m = (self.inverse.static_displacement(frac * umax2),
+                               self.inverse.static_displacement((1.0 - frac) * umax2))
+        self.plan: _Plan | None = None
+        self.plan_checks = plan_checks(config.min_move_time_s)
+        self.plan_note: tuple[bool, str] | None = None   # (accepted?, text) of the last finished plan
 
     # ---------------------------------------------------------------- setup
     @property
@@ -138,12 +177,24 @@ class PositionController:
     def started(self) -> bool:
         return self.state is not None
 
+    def plausible_start(self, displacement_m: float) -> bool:
+        """Can the controller (re)start on this measurement? Finite and within the reachable range
+        widened by ``start_tolerance_fraction`` of its width (a reading far outside is a sensor fault)."""
+        d = float(displacement_m)
+        lo, hi = self.reachable_range_m
+        pad = self.config.start_tolerance_fraction * (hi - lo)
+        return math.isfinite(d) and lo - pad <= d <= hi + pad
+
     def start(self, t_s: float, displacement_m: float, voltage_V: float | None = None) -> float:
         """Begin at time t holding the measured displacement (clamped into the reachable range).
 
         The membrane is assumed at rest (eps1 relaxed); ``voltage_V`` is the voltage applied now
         (default: the static inverse of the held position). Returns the held position, m.
+        Raises ValueError for a measurement that is not :meth:`plausible_start`.
         """
+        if not self.plausible_start(displacement_m):
+            raise ValueError(f"start: implausible measurement {float(displacement_m) * 1e6:.1f} um (reachable range "
+                             f"{self.reachable_range_m[0] * 1e6:.1f}-{self.reachable_range_m[1] * 1e6:.1f} um)")
         lo, hi = self.reachable_range_m
         d = min(max(float(displacement_m), lo), hi)
         self.strain = StrainIntegrator(self.inverse, d)
@@ -155,25 +206,117 @@ class PositionController:
     def stop(self) -> None:
         self.state = None
         self.strain = None
+        self.plan = None
+
+    def goal_m(self, t_s: float) -> float:
+        """Where the reference is heading: the setpoint being planned, the end of a move or hold, or
+        (a trajectory: aborted on a stop) the reference position at t (m)."""
+        if self.plan is not None:
+            return self.plan.target_m
+        traj = self.state.trajectory
+        if isinstance(traj, (QuinticMove, Hold)):
+            return traj.final_m
+        return self.reference_at(t_s)[0]
 
     def reference_at(self, t_s: float) -> tuple[float, float, float]:
         return self.state.trajectory.sample(t_s)
 
     # ------------------------------------------------------------ references
+    def clamp_setpoint(self, target_m: float) -> tuple[float, str]:
+        """(the setpoint to plan, a note): within ``end_tolerance_m`` of the reachable range, clamped to the
+        usable range; beyond it, :class:`UnreachableReferenceError` naming both ranges."""
+        lo, hi = self.reachable_range_m
+        tol = self.config.end_tolerance_m
+        d = float(target_m)
+        u_lo, u_hi = self.usable_range_m
+        if not (math.isfinite(d) and lo - tol <= d <= hi + tol):
+            try:
+                self.inverse.check_reachable(d, "setpoint")
+            except UnreachableReferenceError as exc:
+                within = "" if "reachable range" in str(exc) else \
+                    f" (reachable range [{lo * 1e6:.1f} um, {hi * 1e6:.1f} um])"
+                raise UnreachableReferenceError(
+                    f"{exc}{within}; setpoints within {tol * 1e6:g} um of the reachable range are clamped to the "
+                    f"usable range [{u_lo * 1e6:.1f}, {u_hi * 1e6:.1f}] um") from None
+        clamped = min(max(d, u_lo), u_hi)
+        if clamped == d:
+            return d, ""
+        return clamped, (f"setpoint {d * 1e6:.1f} um clamped to {clamped * 1e6:.1f} um, the end of the usable range "
+                         f"[{u_lo * 1e6:.1f}, {u_hi * 1e6:.1f}] um (u^2 headroom "
+                         f"{self.config.end_margin_fraction:g} x u_max^2 for the feedback)")
+
+    def request_setpoint(self, t_s: float, target_m: float) -> str:
+        """Answer a setpoint at once without planning it here: clamped (the note says so) or refused
+        (:class:`UnreachableReferenceError`); :meth:`update` plans it one check per sample, holding the
+        current reference meanwhile, and the move starts at t_s + lead + :attr:`plan_checks` periods.
+        The outcome is left in :attr:`plan_note`. A newer request replaces a pending one.
+        """
+        self._require_started()
+        target, note = self.clamp_setpoint(target_m)
+        self._begin_plan(t_s + self.config.lead_s + self.plan_checks * self.config.sample_period_s, target)
+        return f"planning a move to {target * 1e6:.1f} um" + (f" ({note})" if note else "")
+
+    def _begin_plan(self, start_s: float, target_m: float, retry: bool = True) -> None:
+        state = self.reference_at(start_s)
+        eps = self._strain_ahead(start_s)
+        steps = plan_move_steps(self.inverse, start_s, state, target_m, self.max_voltage_V,
+                                self.reference_slew_V_per_s, self.config.min_move_time_s, eps1=eps)
+        self.plan = _Plan(target_m, start_s, eps, steps, retry=retry and abs(state[1]) > 0.0)
+
+    def _step_plan(self) -> None:
+        """One check of the pending plan (at most one per sample)."""
+        plan = self.plan
+        try:
+            next(plan.steps)
+            return
+        except StopIteration as done:
+            move, feas = done.value
+            self.plan = None
+            self._set_trajectory(move, plan.start_s, plan.eps1)
+            self.plan_note = (True, f"move to {plan.target_m * 1e6:.1f} um in {move.duration_s * 1e3:.1f} ms"
+                              + (f" ({feas.message})" if feas.message != "ok" else ""))
+        except UnreachableReferenceError as exc:
+            self.plan = None
+            traj = self.state.trajectory
+            if plan.retry and isinstance(traj, QuinticMove) and traj.end_s > plan.start_s:
+                # from a moving reference every quintic may overshoot the range: plan again from the end
+                # of the running move (at rest there), the same bounded number of checks
+                self._begin_plan(traj.end_s, plan.target_m, retry=False)
+                return
+            self.plan_note = (False, str(exc))
+
+    def take_plan_note(self) -> tuple[bool, str] | None:
+        """The outcome of the last finished plan, once."""
+        note, self.plan_note = self.plan_note, None
+        return note
+
+    def _strain_ahead(self, t_s: float) -> float:
+        """eps1 of the current reference at a time t that may lie ahead of the integrator (not advancing it)."""
+        st = self.state
+        if t_s <= st.t_ff:
+            return self._strain_at(t_s)
+        n = int(math.ceil((t_s - st.t_ff) / 5e-3)) + 1      # steps of at most 5 ms, as _advance_strain
+        times = np.linspace(st.t_ff, t_s, max(n, 2))
+        ahead = copy.copy(self.strain)
+        return float(ahead.run(st.trajectory.sample_many(times)[0], float(times[1] - times[0]))[-1])
+
     def set_setpoint(self, t_s: float, target_m: float) -> str:
-        """Shape a move from the current reference to ``target_m``; returns a description.
+        """Shape a move from the current reference to ``target_m`` now (planned here, a bounded number of
+        checks); returns a description. Clamped at the ends as :meth:`clamp_setpoint`.
 
         Raises :class:`UnreachableReferenceError` (the reference is unchanged) for a target outside
         the reachable range.
         """
         self._require_started()
+        target_m, note = self.clamp_setpoint(target_m)
+        self.plan = None
         state = self.reference_at(t_s)
         eps = self._strain_at(t_s)
         move, feas = plan_move(self.inverse, t_s, state, target_m, self.max_voltage_V,
                                self.reference_slew_V_per_s, self.config.min_move_time_s, eps1=eps)
         self._set_trajectory(move, t_s, eps)
         return (f"move to {target_m * 1e6:.1f} um in {move.duration_s * 1e3:.1f} ms"
-                + (f" ({feas.message})" if feas.message != "ok" else ""))
+                + (f" ({feas.message})" if feas.message != "ok" else "") + (f"; {note}" if note else ""))
 
     def set_trajectory(self, t_s: float, trajectory: Trajectory) -> str:
         """Follow ``trajectory`` (absolute times) from now on; refused with the reason when infeasible.
@@ -189,6 +332,7 @@ class PositionController:
                                 t_from_s=t_s, eps1=eps)
         if not feas.ok:
             raise UnreachableReferenceError(feas.message)
+        self.plan = None
         self._set_trajectory(trajectory, t_s, eps)
         return (f"trajectory of {trajectory.end_s - trajectory.start_s:.3f} s accepted (peak feedforward "
                 f"{float(feas.voltage_V.max()):.0f} V, slew {feas.worst_slew_V_per_s:.3g} V/s)")
@@ -226,6 +370,8 @@ class PositionController:
         st = self.state
         dt = cfg.sample_period_s if st.last_t is None else max(t_s - st.last_t, 0.0)
         st.last_t = t_s
+        if self.plan is not None:
+            self._step_plan()
         d_ref = st.trajectory.sample(t_s)[0]
         # 1. feedforward at the time the command will act
         t_ff = t_s + cfg.lead_s

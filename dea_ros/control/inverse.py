@@ -32,6 +32,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import lfilter
 
 from ..model import DEAModel, MembraneParameters, NoEquilibriumError, static_equilibrium
 from ..errors import UnreachableReferenceError
@@ -129,6 +130,19 @@ class ModelInverse:
         out = (self._mg * s / (self._c1bar * d) - m.hyperelastic_stress(s)) / (m.c2 * s)
         return float(out) if out.ndim == 0 else out
 
+    def static_displacement(self, u2_V2: float) -> float:
+        """The displacement (m) in the reachable range whose static u^2 (eq. 20) is ``u2_V2`` (bisection;
+        u^2 rises with d along the stable branch); clamped to the range's ends."""
+        lo, hi = self.reachable_range_m
+        target = float(u2_V2)
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if float(self.static_u2(mid)) < target:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
+
     def static_voltage(self, displacement_m, check: bool = True):
         """The voltage (V) whose static equilibrium is d (eq. 20); checks the reachable range."""
         d = np.asarray(displacement_m, dtype=float)
@@ -213,3 +227,26 @@ class StrainIntegrator:
         self.d = float(displacement_m)
         self._f, self._f_at = f1, self.d
         return self.eps1
+
+    def run(self, displacements_m, dt_s: float) -> np.ndarray:
+        """eps1 along displacements on a uniform grid of step ``dt_s``, from the current state.
+
+        The first displacement is taken as the current one (eps1[0] = the current eps1); the same
+        exact exponential step as :meth:`step`, written as the linear recursion
+        ``e_k = exp(-r dt) e_(k-1) + b_k`` and evaluated by one ``lfilter`` call (the planner's
+        checks are vectorised with it). Leaves the integrator at the last displacement.
+        """
+        d = np.asarray(displacements_m, dtype=float)
+        f = self.inverse.relaxed_strain(d)
+        x = self.rate * float(dt_s)
+        if d.size < 2 or x <= 0.0:
+            out = np.full(d.size, self.eps1)
+        else:
+            ex = math.exp(-x)
+            slope = np.diff(f) / x if x > 1e-12 else np.zeros(d.size - 1)
+            b = f[1:] - slope + (slope - f[:-1]) * ex
+            rest, _ = lfilter([1.0], [1.0, -ex], b, zi=[ex * self.eps1])
+            out = np.concatenate(([self.eps1], rest))
+        self.eps1 = float(out[-1])
+        self.d = float(d[-1]) if d.size else self.d
+        return out

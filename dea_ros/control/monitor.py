@@ -34,13 +34,17 @@ class SampleStream:
         self.samples = 0
         self.stale = 0                          # not newer than the latest (out of order, repeated)
         self.skipped = 0                        # never seen (gaps in the stamps: dropped or overtaken)
-        self.invalid = 0                        # not finite
+        self.invalid = 0                        # not finite or outside the sensor's range
 
-    def accept(self, t_s: float, displacement_m: float) -> bool:
-        """Take a sample acquired at ``t_s``; False (counted) when it is invalid or stale."""
+    def accept(self, t_s: float, displacement_m: float, min_m: float = -math.inf, max_m: float = math.inf) -> bool:
+        """Take a sample acquired at ``t_s``; False (counted) when it is invalid or stale.
+
+        Invalid: not finite (a sample the laser node flagged implausible arrives as NaN) or outside
+        [``min_m``, ``max_m``] (the sensor's measuring range, sensor_msgs/Range min_range/max_range).
+        """
         d = float(displacement_m)
         t = float(t_s)
-        if not math.isfinite(d):
+        if not (math.isfinite(d) and min_m <= d <= max_m):
             self.invalid += 1
             return False
         last = self.last_t_s

@@ -33,11 +33,14 @@ from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 
 __all__ = [
     "Trajectory", "Hold", "QuinticMove", "PiecewiseQuintic", "SineReference",
-    "Feasibility", "check_trajectory", "plan_move", "trajectory_from_points",
+    "Feasibility", "check_trajectory", "plan_move", "plan_move_steps", "plan_checks", "trajectory_from_points",
+    "PLAN_MAX_POINTS",
 ]
 
 #: Points due within this time of now (s) are in the past for :func:`trajectory_from_points`.
 PAST_TOLERANCE_S = 1e-4
+#: Grid points of one feasibility check in :func:`plan_move` (bounds the planner's cost).
+PLAN_MAX_POINTS = 400
 
 
 class Trajectory:
@@ -122,6 +125,14 @@ class QuinticMove(Trajectory):
             return self.initial
         return _eval_quintic(self._c, tau)
 
+    def sample_many(self, t_s) -> np.ndarray:
+        """(3, K) array of d, v, a at the times t_s (vectorised: the planner's cost is bounded by it)."""
+        tau = np.clip(np.asarray(t_s, float) - self.start_s, 0.0, self.duration_s)
+        out = np.array(_eval_quintic(self._c, tau))
+        out[:, tau >= self.duration_s] = np.array([[self.target_m], [0.0], [0.0]])
+        out[:, tau <= 0.0] = np.array(self.initial)[:, None]
+        return out
+
 
 class PiecewiseQuintic(Trajectory):
     """Quintic Hermite segments through timed knots (absolute times, s).
@@ -185,6 +196,16 @@ class PiecewiseQuintic(Trajectory):
             return float(self.positions[0]), float(self.velocities[0]), float(self.accelerations[0])
         i = int(np.searchsorted(t, t_s, side="right")) - 1
         return _eval_quintic(self._coef[i], t_s - t[i])
+
+    def sample_many(self, t_s) -> np.ndarray:
+        """(3, K) array of d, v, a at the times t_s (vectorised over the segments)."""
+        t = self.times
+        ts = np.clip(np.asarray(t_s, float), t[0], t[-1])
+        i = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, t.size - 2)
+        coef = np.array(self._coef)[i].T                      # (6, K): each time's segment
+        out = np.array(_eval_quintic(tuple(coef), ts - t[i]))
+        out[:, ts >= t[-1]] = np.array([[self.positions[-1]], [0.0], [0.0]])
+        return out
 
 
 def trajectory_from_points(now_s: float, state, points) -> PiecewiseQuintic:
@@ -269,17 +290,22 @@ class Feasibility:
 
 def check_trajectory(trajectory: Trajectory, inverse: ModelInverse, max_voltage_V: float,
                      slew_rate_V_per_s: float, t_from_s: float | None = None, eps1: float | None = None,
-                     dt_s: float = 1e-3, what: str = "trajectory") -> Feasibility:
+                     dt_s: float = 1e-3, what: str = "trajectory", max_points: int | None = None) -> Feasibility:
     """Can the actuator follow ``trajectory`` from ``t_from_s`` to its end? (model feedforward).
 
     Checks every position against the reachable range, then integrates eps1 along the
     reference (from ``eps1``, default relaxed at the first position) and evaluates the
     feedforward u^2 (eq. 5 inverted) on a ``dt_s`` grid: u^2 must stay >= 0 (the membrane can
     only pull the mass down), u <= ``max_voltage_V`` and |du/dt| <= ``slew_rate_V_per_s``.
+    ``max_points`` caps the grid (the step grows beyond ``dt_s`` on long spans): the cost of a check is
+    then bounded, which suits references smooth over their whole span (a :class:`QuinticMove`).
+    Vectorised: eps1 by :meth:`StrainIntegrator.run`, u^2 by :meth:`ModelInverse.dynamic_u2` on arrays.
     """
     t0 = trajectory.start_s if t_from_s is None else float(t_from_s)
     t1 = max(trajectory.check_until_s, t0)
     n = max(int(math.ceil((t1 - t0) / dt_s)), 1) + 1
+    if max_points is not None:
+        n = min(n, max(int(max_points), 2))
     times = np.linspace(t0, t1, n) if t1 > t0 else np.array([t0, t0 + dt_s])
     ref = trajectory.sample_many(times)
     lo, hi = inverse.reachable_range_m
@@ -291,10 +317,8 @@ def check_trajectory(trajectory: Trajectory, inverse: ModelInverse, max_voltage_
         except UnreachableReferenceError as exc:
             return Feasibility(False, str(exc), times, np.full(n, np.nan), np.full(n, np.nan), math.nan, math.nan)
     strain = StrainIntegrator(inverse, float(ref[0, 0]), eps1)
-    u2 = np.empty(times.size)
-    for k in range(times.size):
-        e = strain.step(float(ref[0, k]), float(times[k] - times[k - 1]) if k else 0.0)
-        u2[k] = inverse.dynamic_u2(float(ref[0, k]), float(ref[1, k]), float(ref[2, k]), e)
+    eps = strain.run(ref[0], float(times[1] - times[0]))
+    u2 = inverse.dynamic_u2(ref[0], ref[1], ref[2], eps)
     u = np.sqrt(np.maximum(u2, 0.0))
     slew = np.abs(np.diff(u)) / np.diff(times)
     worst = float(slew.max()) if slew.size else 0.0
@@ -322,27 +346,77 @@ def check_trajectory(trajectory: Trajectory, inverse: ModelInverse, max_voltage_
 
 def plan_move(inverse: ModelInverse, start_s: float, state, target_m: float, max_voltage_V: float,
               slew_rate_V_per_s: float, min_duration_s: float, eps1: float | None = None,
-              growth: float = 1.05, max_duration_s: float = 30.0) -> tuple[QuinticMove, Feasibility]:
+              growth: float = 1.02, max_duration_s: float = 30.0,
+              max_points: int = PLAN_MAX_POINTS) -> tuple[QuinticMove, Feasibility]:
     """The fastest feasible :class:`QuinticMove` to ``target_m`` no shorter than ``min_duration_s``.
 
-    ``state`` is the reference (d, v, a) at ``start_s``. The duration grows by ``growth`` until
-    :func:`check_trajectory` passes. Raises :class:`UnreachableReferenceError` for a target
-    outside the reachable range or when no duration up to ``max_duration_s`` is feasible.
+    ``state`` is the reference (d, v, a) at ``start_s``. Runs :func:`plan_move_steps` to the end (its
+    bounded number of checks); raises :class:`UnreachableReferenceError` for a target outside the
+    reachable range or when no duration up to ``max_duration_s`` is feasible.
+    """
+    steps = plan_move_steps(inverse, start_s, state, target_m, max_voltage_V, slew_rate_V_per_s, min_duration_s,
+                            eps1, growth, max_duration_s, max_points)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
+
+
+def plan_move_steps(inverse: ModelInverse, start_s: float, state, target_m: float, max_voltage_V: float,
+                    slew_rate_V_per_s: float, min_duration_s: float, eps1: float | None = None,
+                    growth: float = 1.02, max_duration_s: float = 30.0, max_points: int = PLAN_MAX_POINTS):
+    """:func:`plan_move` one feasibility check at a time: a generator that yields after each check
+    and returns ``(move, feasibility)`` (``StopIteration.value``) or raises UnreachableReferenceError.
+
+    Bounded cost (issue 20): the duration doubles from ``min_duration_s`` until a check passes
+    (none up to ``max_duration_s``: refused), then is bisected on a log scale between the last
+    failing and the first passing duration until they are within a factor ``growth`` -- at most
+    :func:`plan_checks` checks (18 for the defaults), each on at most ``max_points`` grid points (a
+    quintic is smooth over its span). Doubling, rather than trying the longest duration first,
+    keeps a move that starts in motion from overshooting the range on a needlessly slow quintic.
+    The control loop runs one check per sample, so no sample waits for a whole plan.
     """
     inverse.check_reachable(target_m, "setpoint")
     d0, v0, a0 = (float(x) for x in state)
-    duration = max(float(min_duration_s), 1e-3)
-    last = None
-    while duration <= max_duration_s:
+    if not growth > 1.0:
+        raise ValueError(f"growth: must be > 1, got {growth!r}")
+
+    def check(duration):
         move = QuinticMove(start_s, d0, target_m, duration, v0, a0)
-        feas = check_trajectory(move, inverse, max_voltage_V, slew_rate_V_per_s, eps1=eps1, what="move")
+        return move, check_trajectory(move, inverse, max_voltage_V, slew_rate_V_per_s, eps1=eps1, what="move",
+                                      max_points=max_points)
+
+    duration = max(float(min_duration_s), 1e-3)
+    longest = max(float(max_duration_s), duration)
+    move, feas = check(duration)
+    if feas.ok:
+        return move, feas
+    failed, why = duration, feas
+    while True:
+        yield
+        duration = min(2.0 * failed, longest)
+        move, feas = check(duration)
         if feas.ok:
-            if last is not None:   # say why it was lengthened
-                feas = dataclasses.replace(feas, message=f"lengthened: {duration / growth * 1e3:.1f} ms fails: "
-                                                         f"{last.message}")
-            return move, feas
-        last = feas
-        duration *= growth
-    raise UnreachableReferenceError(
-        f"setpoint {target_m * 1e6:.1f} um: no move up to {max_duration_s:g} s is feasible ({last.message})"
-    )
+            break
+        if duration >= longest:
+            raise UnreachableReferenceError(
+                f"setpoint {target_m * 1e6:.1f} um: no move up to {max_duration_s:g} s is feasible "
+                f"({feas.message}); reachable range [{inverse.d_min_m * 1e6:.1f}, {inverse.d_max_m * 1e6:.1f}] um")
+        failed, why = duration, feas
+    while duration > failed * growth:
+        yield
+        mid = math.sqrt(failed * duration)
+        m_move, m_feas = check(mid)
+        if m_feas.ok:
+            duration, move, feas = mid, m_move, m_feas
+        else:
+            failed, why = mid, m_feas
+    return move, dataclasses.replace(feas, message=f"lengthened: {failed * 1e3:.1f} ms fails: {why.message}")
+
+
+def plan_checks(min_duration_s: float, growth: float = 1.02, max_duration_s: float = 30.0) -> int:
+    """The largest number of feasibility checks :func:`plan_move_steps` makes."""
+    short = max(float(min_duration_s), 1e-3)
+    doublings = int(math.ceil(math.log2(max(float(max_duration_s), short) / short)))
+    return 1 + doublings + int(math.ceil(math.log2(math.log(2.0) / math.log(growth))))

@@ -6,6 +6,11 @@ Lifecycle (``ros2 lifecycle set /amplifier_node configure|activate|deactivate|cl
   at start-up; refuses (stays unconfigured, 0 V) on any configuration or hardware mismatch;
 * inactive: output 0 V (after a ramp-down); commands are rejected (counted);
 * ``activate``: commands on ``voltage_cmd`` (std_msgs/Float64, V) are followed within the limits;
+  with a monitor wired, only after the gain loop check
+  (:class:`~dea_ros.hardware.amplifier.gain_check.GainLoopCheck`: ``gain_check_V``, a few tens of
+  volts, through the same limits; until it passes commands are rejected and counted; a monitor
+  that disagrees is a latched fault at 0 V with the numbers); without a monitor the diagnostics
+  say the gain is unverified (README, commissioning: check it with a meter);
 * ``deactivate`` / ``cleanup`` / ``shutdown`` / SIGINT / SIGTERM / SIGHUP / SIGQUIT / an
   exception in a callback / executor shutdown: ramp to 0 V.
 
@@ -54,6 +59,7 @@ from std_msgs.msg import Float64, Header
 
 from ..errors import AmplifierBackendError
 from ..hardware.amplifier.config import AMPLIFIER_PARAMETERS, amplifier_config_from_parameters
+from ..hardware.amplifier.gain_check import GainLoopCheck, unverified_gain_note
 from ..hardware.amplifier.inprocess import InProcessAmplifierBackend
 from ..hardware.amplifier.rig_description import AmplifierRigExpectation, describe_amplifier_rig
 from ..hardware.amplifier.udp import MockAmplifierBackend
@@ -130,6 +136,9 @@ class AmplifierNode(LifecycleNode):
         self.last_sim_s: float | None = None
         self.previous_output_V = 0.0
         self.monitor_V: float | None = None
+        self.gain_check: GainLoopCheck | None = None   # running on activation (monitor wired)
+        self.gain_status = "not checked"
+        self.gain_check_rejections = 0
         self.output_enabled = False
         self.sim_stalls = 0
         self._shutting_down = False
@@ -284,10 +293,45 @@ class AmplifierNode(LifecycleNode):
         except AmplifierBackendError as exc:
             self.enter_fault(f"enable output failed: {exc}")
             return TransitionCallbackReturn.FAILURE
+        if self.expected.monitor_channel is not None:
+            self.gain_check = self._new_gain_check()
+            self.gain_status = f"loop check at {self.gain_check.check_V:.1f} V running"
+            self.get_logger().info(f"active: gain loop check at {self.gain_check.check_V:.1f} V before following "
+                                   "voltage_cmd")
+            return super().on_activate(state)
+        if self.expected.backend == "uldaq":
+            self.gain_status = unverified_gain_note(self.expected.amplifier_gain_V_per_V)
+            self.get_logger().warning(self.gain_status)
+        else:
+            self.gain_status = f"no gain stage (backend {self.expected.backend}: volts are sent as volts)"
         self.get_logger().info("active: following voltage_cmd")
         return super().on_activate(state)
 
+    def _new_gain_check(self) -> GainLoopCheck:
+        c, lim = self.config, self.limits
+        check_V = min(float(c["gain_check_V"]), lim.max_voltage_V)
+        settle_s = max(float(c["gain_check_settle_s"]), 3.0 * self.update_period_s)
+        return GainLoopCheck(check_V, float(c["gain_check_tolerance_fraction"]), settle_s,
+                             timeout_s=check_V / min(lim.slew_rate_V_per_s, 1000.0) + settle_s + 1.0,
+                             amplifier_gain_V_per_V=self.expected.amplifier_gain_V_per_V,
+                             monitor_gain_V_per_V=float(self.expected.monitor_gain_V_per_V))
+
+    def _step_gain_check(self, t: float, u: float) -> bool:
+        """One update of the loop check; False when it failed (the node has faulted)."""
+        result = self.gain_check.observe(t, u, self.monitor_V)
+        if result is None:
+            return True
+        self.gain_check = None
+        self.gain_status = result.message
+        if not result.ok:
+            self.enter_fault(result.message)
+            return False
+        self.controller.command(0.0, t)     # leave the check voltage; follow voltage_cmd from here
+        self.get_logger().info(f"{result.message}; following voltage_cmd")
+        return True
+
     def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self.gain_check = None
         if self.controller is not None:
             self.controller.deactivate(self.control_clock.now_s)  # the update timer ramps to 0 V
         self.get_logger().info("inactive: ramping to 0 V")
@@ -391,6 +435,9 @@ class AmplifierNode(LifecycleNode):
     def on_command(self, msg: Float64) -> None:
         if self.controller is None:
             return
+        if self.gain_check is not None:     # no command is followed before the gain is verified
+            self.gain_check_rejections += 1
+            return
         result = self.controller.command(msg.data, self.control_clock.now_s)
         if self.received_pub is not None:  # simulated time: the mock rig's lockstep waits for it
             self.received_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id=self.get_name()))
@@ -406,6 +453,8 @@ class AmplifierNode(LifecycleNode):
         if self.controller is None or self.backend is None or not self.backend.is_open or self._shutting_down:
             return
         t = self._control_time(source)
+        if self.gain_check is not None:
+            self.controller.command(self.gain_check.command_at(t), t)   # through the limits (ceiling, slew)
         u = self.controller.update(t)
         if not self.write(u):
             self.enter_fault(f"backend write failed: {self.backend_fault}")
@@ -413,7 +462,11 @@ class AmplifierNode(LifecycleNode):
         if self.expected.monitor_channel is not None:
             problem = self._monitor_problem(u, self.previous_output_V)
             if problem is not None:
+                if self.gain_check is not None and u > 0.0 and self.monitor_V is not None:   # during the check
+                    problem = f"{problem}; {self.gain_check.judge(u, self.monitor_V).message}"
                 self.enter_fault(problem)
+                return
+            if self.gain_check is not None and not self._step_gain_check(t, u):
                 return
         self.previous_output_V = u
         self._set_enabled(self.controller.is_activated or u > 0.0)
@@ -444,6 +497,7 @@ class AmplifierNode(LifecycleNode):
             values = self.controller.diagnostics(self.control_clock.now_s).key_values()
             values += [("enforced_max_voltage_V", f"{self.ceiling_V:.1f}"),
                        ("monitor_V", "none" if self.monitor_V is None else f"{self.monitor_V:.1f}"),
+                       ("gain", self.gain_status), ("rejected_during_gain_check", str(self.gain_check_rejections)),
                        ("output_enabled", str(self.output_enabled)),
                        ("clock_clamped_steps", str(self.control_clock.clamped_steps)),
                        ("sim_clock_stalls", str(self.sim_stalls))]

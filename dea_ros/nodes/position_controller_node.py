@@ -11,8 +11,13 @@ Topics (relative: namespace ``/dea`` in the launch files; SI units):
   acquisition time): the measurement; the control step runs in its callback, on the newest sample
   only (best effort, depth 1: a late node skips samples instead of acting on old ones; counted as
   ``skipped_samples``);
-* subscribes ``displacement_setpoint`` (std_msgs/Float64, m): a target position, shaped into the
-  fastest move the actuator can follow (or refused, with the reason, when outside the range);
+* subscribes ``displacement_setpoint`` (std_msgs/Float64, m): a target position, answered at once --
+  within 2 um of the reachable range's ends (or beyond them by at most that) clamped to the usable range,
+  further out refused with the range in the message -- and shaped by the sample loop (one planner
+  check per sample, the current reference held meanwhile) into the fastest move the actuator can follow;
+  samples flagged implausible by the laser node (``range`` NaN) or outside [min_range, max_range] are
+  skipped (``invalid_samples``), and the controller never (re)starts on a reading far outside its range
+  (``implausible_starts``);
 * subscribes ``joint_trajectory`` (trajectory_msgs/JointTrajectory, one prismatic joint
   ``joint_name``, positions in m = displacement): followed through its points (C^2 spline or quintic
   Hermite segments); refused as a whole when the actuator cannot follow it; an empty trajectory
@@ -27,7 +32,8 @@ Topics (relative: namespace ``/dea`` in the launch files; SI units):
 
 Loss of the laser stream for ``sensor_timeout_s``: the node stops commanding (the amplifier's
 watchdog then ramps the voltage down), aborts a running trajectory and reports ERROR; when samples
-come back it restarts from the measured position and moves back to the reference it held.
+come back it restarts from the measured position and moves to the setpoint it was heading for (a
+setpoint being planned or moved to survives the dropout; an aborted trajectory: the reference it held).
 
 Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin`` /
 ``max_voltage_V`` (as amplifier_node: the controller never commands more), ``slew_rate_V_per_s``
@@ -37,6 +43,7 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 """
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -140,6 +147,7 @@ class PositionControllerNode(LifecycleNode):
         self.last_refusal = ""
         self.last_accept = ""
         self.max_compute_s = 0.0
+        self.implausible_starts = 0
 
     def make_config(self, params) -> ControllerConfig:
         """The controller's settings from the parameters (the voltage ceiling from the membrane)."""
@@ -258,16 +266,14 @@ class PositionControllerNode(LifecycleNode):
         if not self.active or self.ctl is None:
             return
         target = float(msg.data)
-        try:
-            self.ctl.inverse.check_reachable(target, "displacement_setpoint")
-        except UnreachableReferenceError as exc:
-            self._refuse("setpoint", exc)
-            return
-        if not self.ctl.started:       # applied when the first laser sample arrives
+        try:       # answered at once: clamped at the ends or refused with the range; planned by the loop
+            if self.ctl.started:
+                self._accept(self.ctl.request_setpoint(self._ref_time(), target))
+                return
+            target, note = self.ctl.clamp_setpoint(target)   # applied when the first plausible sample arrives
             self.pending_setpoint = target
-            return
-        try:
-            self._accept(self.ctl.set_setpoint(self._ref_time(), target))
+            self._accept(f"setpoint {target * 1e6:.1f} um pending until the laser streams"
+                         + (f" ({note})" if note else ""))
         except UnreachableReferenceError as exc:
             self._refuse("setpoint", exc)
 
@@ -314,12 +320,20 @@ class PositionControllerNode(LifecycleNode):
         t0 = time.perf_counter()
         d = float(msg.range)
         t = stamp_to_s(msg.header.stamp)
-        if not self.stream.accept(t, d):
+        # NaN: flagged implausible by the laser node; outside [min_range, max_range] (when set): not a measurement
+        lo, hi = float(msg.min_range), float(msg.max_range)
+        if not self.stream.accept(t, d, *((lo, hi) if hi > lo else (-math.inf, math.inf))):
             return
         self.last_receipt_s = self.now_s()
-        if not self.ctl.started:
-            self._start(t, d)
+        if not self.ctl.started and not self._start(t, d):
+            return
         out = self.ctl.update(t, d)
+        note = self.ctl.take_plan_note()
+        if note is not None:           # a setpoint's plan finished in this step
+            if note[0]:
+                self._accept(note[1])
+            else:
+                self._refuse("setpoint", note[1])
         self.cmd_msg.data = float(out.voltage_V)
         self.voltage_pub.publish(self.cmd_msg)
         if self.stamped_pub is not None:   # latency measurements, bags: the command with its sample's stamp
@@ -335,7 +349,14 @@ class PositionControllerNode(LifecycleNode):
         self.window.add(out)
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
 
-    def _start(self, t: float, d: float) -> None:
+    def _start(self, t: float, d: float) -> bool:
+        """(Re)start on a plausible measurement (False, counted, otherwise); the pending or interrupted
+        setpoint is planned by the loop from there."""
+        if not self.ctl.plausible_start(d):
+            self.implausible_starts += 1
+            self.get_logger().warning(f"not (re)starting on the implausible measurement {d * 1e6:.1f} um",
+                                      throttle_duration_sec=1.0)
+            return False
         held = self.ctl.start(t, d)
         self.state = "tracking"
         target = self.pending_setpoint if self.pending_setpoint is not None else self.resume_target
@@ -343,17 +364,18 @@ class PositionControllerNode(LifecycleNode):
         text = f"started at {d * 1e6:.1f} um (holding {held * 1e6:.1f} um)"
         if target is not None:
             try:
-                text += "; " + self.ctl.set_setpoint(t, target)
+                text += "; " + self.ctl.request_setpoint(t, target)
             except UnreachableReferenceError as exc:
                 self._refuse("setpoint", exc)
         self._accept(text)
+        return True
 
     def check_sensor(self) -> None:
         if not self.active or self.ctl is None or not self.ctl.started or self.last_receipt_s is None:
             return
         silent = self.now_s() - self.last_receipt_s
         if silent > float(self.p("sensor_timeout_s")):
-            self.resume_target = self.ctl.reference_at(self.stream.last_t_s)[0]
+            self.resume_target = self.ctl.goal_m(self.stream.last_t_s)   # the setpoint survives the dropout
             self.ctl.stop()
             self.sensor_losses += 1
             self.state = "laser lost: not commanding"
@@ -396,7 +418,7 @@ class PositionControllerNode(LifecycleNode):
             ("u2_feedback_V2", f"{out.u2_feedback_V2:.4g}" if out else "nan"),
             ("samples", stream.samples), ("commands", self.commands), ("saturated_commands", window.saturations),
             ("stale_samples", stream.stale), ("skipped_samples", stream.skipped),
-            ("invalid_samples", stream.invalid),
+            ("invalid_samples", stream.invalid), ("implausible_starts", self.implausible_starts),
             ("sensor_losses", self.sensor_losses), ("refused", self.refused), ("last_refusal", self.last_refusal),
             ("last_accepted", self.last_accept), ("reachable_min_m", f"{lo:.9f}"), ("reachable_max_m", f"{hi:.9f}"),
             ("max_voltage_V", f"{self.ctl.max_voltage_V:.1f}"), ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"),

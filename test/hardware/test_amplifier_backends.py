@@ -532,12 +532,12 @@ class TestUldaqBackend:
         with quiet_backend() as backend:
             assert backend.read_monitor_V() is None and not backend.has_monitor  # no monitor channel configured
         fake_uldaq.monitor_wiring = (ul.AiInputMode.SINGLE_ENDED, 1)
-        with quiet_backend(monitor_channel=1) as backend:
+        with quiet_backend(monitor_channel=1, monitor_gain_V_per_V=1000.0) as backend:
             backend.write_voltage(1250.0)
             assert backend.read_monitor_V() == pytest.approx(1250.0)
         assert ("a_in", 1, ul.AiInputMode.SINGLE_ENDED, ul.Range.BIP10VOLTS, ul.AInFlag.DEFAULT) in fake_uldaq.calls
         fake_uldaq.real_gain_V_per_V = 10000.0  # a x10 gain slip: the monitor shows the truth
-        with quiet_backend(monitor_channel=1) as backend:
+        with quiet_backend(monitor_channel=1, monitor_gain_V_per_V=1000.0) as backend:
             backend.write_voltage(500.0)
             assert backend.read_monitor_V() == pytest.approx(5000.0)
             fake_uldaq.unplugged = True
@@ -546,7 +546,7 @@ class TestUldaqBackend:
             fake_uldaq.unplugged = False
         fake_uldaq.has_ai = False
         with pytest.raises(AmplifierBackendError, match="analog input modes \\[\\]"):
-            quiet_backend(monitor_channel=0).open()
+            quiet_backend(monitor_channel=0, monitor_gain_V_per_V=1000.0).open()
 
     @pytest.mark.parametrize("product, port, config_call",
                              [("USB-1208HS-4AO", "AUXPORT", "d_config_bit"),

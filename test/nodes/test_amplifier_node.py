@@ -259,6 +259,7 @@ def board(monkeypatch):
 
 
 def make_uldaq_amp(ctx, **extra):
+    extra.setdefault("monitor_gain_V_per_V", 1000.0)
     return make_amp(ctx, backend="uldaq", monitor_channel=2, enable_port="AUXPORT", enable_bit=5, **extra)
 
 

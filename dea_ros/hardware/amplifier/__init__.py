@@ -9,10 +9,13 @@
 * :mod:`.inprocess`, :mod:`.udp`, :mod:`.uldaq`: the backends (in memory; UDP datagrams to the
   simulated rig; a Measurement Computing DAQ, ``uldaq`` imported only when a device is used);
 * :mod:`.rig_description`: a DAQ board against what the configuration expects (pure);
-* :mod:`.config`: amplifier_node's parameters validated into limits and a hardware expectation.
+* :mod:`.config`: amplifier_node's parameters validated into limits and a hardware expectation;
+* :mod:`.gain_check`: :class:`GainLoopCheck`, the low-voltage loop check of the amplifier gain
+  against the monitor on activation.
 """
 from .base import AmplifierBackend, AmplifierBackendError
 from .config import AMPLIFIER_PARAMETERS, BACKENDS, AmplifierConfig, amplifier_config_from_parameters
+from .gain_check import GainCheckResult, GainLoopCheck, unverified_gain_note
 from .inprocess import InProcessAmplifierBackend
 from .limits import SafetyConfigError, SafetyLimits, membrane_voltage_limit_V
 from .rig_description import (
@@ -35,4 +38,5 @@ __all__ = [
     "UldaqAmplifierBackend", "query_uldaq_board", "KNOWN_DAQ_BOARDS", "DaqBoardInfo", "AmplifierRigExpectation",
     "AmplifierRigDescription", "describe_amplifier_rig", "parse_daq_range", "choose_daq_range",
     "AMPLIFIER_PARAMETERS", "BACKENDS", "AmplifierConfig", "amplifier_config_from_parameters",
+    "GainLoopCheck", "GainCheckResult", "unverified_gain_note",
 ]

@@ -43,11 +43,16 @@ AMPLIFIER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "amplifier_input_full_scale_V": (10.0, "amplifier input for the rated output, V (TREK: 10); gain x full "
                                            "scale must equal the rated output"),
     "monitor_channel": (-1, "uldaq analog input wired to the amplifier's voltage monitor (-1: none)"),
-    "monitor_gain_V_per_V": (0.0, "high volts per monitor volt (0: the amplifier gain)"),
+    "monitor_gain_V_per_V": (0.0, "high volts per monitor volt; required with a monitor (its own setting, from the "
+                                  "amplifier's data sheet: no default to the amplifier gain)"),
     "monitor_range": ("auto", "monitor input range: auto or a uldaq Range name"),
     "monitor_input_mode": ("SINGLE_ENDED", "monitor input mode: SINGLE_ENDED or DIFFERENTIAL"),
     "monitor_tolerance_V": (50.0, "monitor vs command: allowed difference, V (plus the fraction below)"),
     "monitor_tolerance_fraction": (0.05, "monitor vs command: allowed difference as a fraction of the command"),
+    "gain_check_V": (40.0, "with a monitor: the loop check's voltage on every activation, V (5 .. 200; below the "
+                           "ceiling)"),
+    "gain_check_tolerance_fraction": (0.2, "loop check: allowed |monitor / output - 1| (0.01 .. 0.5)"),
+    "gain_check_settle_s": (0.05, "loop check: how long the output holds gain_check_V before the comparison, s"),
     "enable_port": ("", "uldaq digital port of the amplifier's enable/interlock input ('': none), e.g. AUXPORT"),
     "enable_bit": (0, "bit of enable_port"),
     "enable_active_high": (True, "enable_port level that enables the amplifier"),
@@ -127,7 +132,15 @@ def _check_ranges(c: Mapping[str, Any]) -> float:
     _number_in(c, "monitor_channel", -1, 255, "-1 for no monitor")
     _number_in(c, "monitor_tolerance_V", 1.0, 1e4, "V")
     _number_in(c, "monitor_tolerance_fraction", 0.0, 0.5)
-    _number_in(c, "monitor_gain_V_per_V", 0.0, 1e6, "0 for the amplifier gain")
+    _number_in(c, "monitor_gain_V_per_V", 0.0, 1e6, "high volts per monitor volt")
+    if int(c["monitor_channel"]) >= 0 and not float(c["monitor_gain_V_per_V"]) > 0.0:
+        raise ValueError(
+            f"parameter 'monitor_gain_V_per_V': required with a monitor (monitor_channel {int(c['monitor_channel'])}); "
+            "set it from the amplifier's data sheet (TREK 10/10B-HS: 1000 V/V). It is a separate setting: "
+            "defaulting it to amplifier_gain_V_per_V would make a gain slip invisible to the monitor")
+    _number_in(c, "gain_check_V", 5.0, 200.0, "V (a few tens of volts)")
+    _number_in(c, "gain_check_tolerance_fraction", 0.01, 0.5)
+    _number_in(c, "gain_check_settle_s", 0.0, 5.0, "s")
     _number_in(c, "amplifier_max_output_V", 1.0, 30000.0, "V (TREK 10/10B-HS: 10000; a value in kV?)")
     _number_in(c, "amplifier_input_full_scale_V", 0.1, 20.0, "V (TREK: 10)")
     _number_in(c, "amplifier_gain_V_per_V", 1.0, 1e5, "V/V (TREK 10/10B-HS: 1000)")

@@ -126,8 +126,8 @@ class UldaqAmplifierBackend(AmplifierBackend):
     * ``amplifier_max_output_V``, ``amplifier_input_full_scale_V``: the amplifier's rating
       (checked against the gain on open);
     * ``monitor_channel``: analog input wired to the amplifier's voltage monitor (None: no
-      monitor); ``monitor_gain_V_per_V``: high volts per monitor volt (defaults to the
-      amplifier gain); ``monitor_range``: uldaq ``Range`` name of the monitor input, or
+      monitor); ``monitor_gain_V_per_V``: high volts per monitor volt (required with a
+      monitor: no default to the amplifier gain); ``monitor_range``: uldaq ``Range`` name of the monitor input, or
       "auto"; ``monitor_input_mode``: uldaq ``AiInputMode`` name of the monitor input;
     * ``enable_port``: uldaq ``DigitalPortType`` name of the amplifier's enable/interlock line
       (None: none); ``enable_bit`` its bit; ``enable_active_high`` its polarity;
@@ -178,6 +178,10 @@ class UldaqAmplifierBackend(AmplifierBackend):
         self._gain = self._positive("amplifier_gain_V_per_V", amplifier_gain_V_per_V)
         self._amp_max_V = self._positive("amplifier_max_output_V", amplifier_max_output_V)
         self._amp_full_scale_V = self._positive("amplifier_input_full_scale_V", amplifier_input_full_scale_V)
+        if monitor_channel is not None and monitor_gain_V_per_V is None:
+            raise AmplifierBackendError(
+                "field 'monitor_gain_V_per_V': required with a monitor_channel (a separate setting: defaulting it to "
+                "the amplifier gain would make a gain slip invisible to the monitor)")
         self._monitor_gain = (
             self._gain
             if monitor_gain_V_per_V is None
