@@ -10,6 +10,8 @@
   tracking error between reports;
 * :mod:`.prediction`: :class:`ModelPredictor`, the displacement predicted in real time from stamped applied
   voltages (model_node);
+* :mod:`.streaming`: :class:`StreamedReference`, a reference streamed as timed samples (ros2_control's
+  joint commands);
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
@@ -30,11 +32,12 @@ from .reference import (
     trajectory_from_points,
 )
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
+from .streaming import StreamDecision, StreamedReference
 
 __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
     "loop_margins", "ModelInverse", "StrainIntegrator", "UnreachableReferenceError", "Feasibility", "Hold",
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
     "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
-    "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
+    "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays", "StreamedReference", "StreamDecision",
 ]
