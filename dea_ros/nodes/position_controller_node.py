@@ -39,7 +39,12 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 ``max_voltage_V`` (as amplifier_node: the controller never commands more), ``slew_rate_V_per_s``
 (the amplifier's), ``sample_period_s``, ``loop_delay_s``, ``max_sensitivity``,
 ``max_noise_gain`` (feedback design rule), ``min_move_time_s``, ``feedforward``, ``feedback``,
-``sensor_timeout_s``, ``joint_name``, ``joint_commands_topic``, ``joint_states_rate_hz``, ``autostart``.
+``sensor_timeout_s``, ``joint_name``, ``joint_commands_topic``, ``joint_states_rate_hz``, ``autostart``;
+membrane health (:mod:`.membrane_health`): ``track_model`` (online tracking of the membrane's drift; the
+feedforward and the gains follow the tracked model, retuned in a worker thread; false: the identified
+model throughout), ``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``,
+``health_prediction_error_m``, ``health_persistence_s``. The second DiagnosticStatus
+"<node>: membrane health" says what changed in words, with the tracked ratios and the reachable range.
 """
 from __future__ import annotations
 
@@ -78,6 +83,7 @@ from .common import (
     stamp_to_s,
 )
 from .joint_commands import parse_joint_command
+from .membrane_health import ControllerHealth, declare_health_parameters
 from .runner import run_nodes
 
 __all__ = ["PositionControllerNode", "main", "TOPIC_SETPOINT", "TOPIC_TRAJECTORY", "TOPIC_JOINT_STATES"]
@@ -124,7 +130,9 @@ class PositionControllerNode(LifecycleNode):
                      "for mock_hardware_node's lockstep_topics")
         declare_bool(self, "publish_stamped_command", False,
                      "also publish ~/command_stamped (BatteryState: the command stamped with its sample's time)")
+        declare_health_parameters(self, tracking_default=True)
         self.ctl: PositionController | None = None
+        self.health: ControllerHealth | None = None
         self.active = False
         self.sample_period_s = float(self.p("sample_period_s"))   # (again at configure)
         self._reset_runtime()
@@ -182,6 +190,7 @@ class PositionControllerNode(LifecycleNode):
             self.get_logger().error(f"configure failed: parameter 'params_file' ({source!r}) or limits: {exc}")
             self.ctl = None
             return TransitionCallbackReturn.FAILURE
+        self.health = ControllerHealth(self, self.ctl, float(self.p("sample_period_s")))
         self.voltage_pub = self.create_lifecycle_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
         self.joint_pub = self.create_lifecycle_publisher(JointState, TOPIC_JOINT_STATES, 10)
         self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -255,6 +264,9 @@ class PositionControllerNode(LifecycleNode):
         self.own_timers, self.own_subs = [], []
         self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = self.ack_pub = None
         self.ctl = None
+        if self.health is not None:
+            self.health.close()
+            self.health = None
 
     def shutdown_safely(self) -> None:
         """SIGINT/SIGTERM: stop commanding (the amplifier ramps down on its own)."""
@@ -374,6 +386,7 @@ class PositionControllerNode(LifecycleNode):
         if self.ack_pub is not None:
             self.ack_msg.stamp = msg.header.stamp
             self.ack_pub.publish(self.ack_msg)
+        self.health.observe(t, d, out)
         self.commands += 1
         self.last_output = out
         self.window.add(out)
@@ -451,6 +464,10 @@ class PositionControllerNode(LifecycleNode):
         publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: position control", self.ctl.params.name,
                            level, message, values)
         window.clear()
+        if self.health is not None and stream.last_t_s is not None:
+            h_level, h_message, h_values = self.health.status(stream.last_t_s, out.reference_m if out else None)
+            publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: membrane health", self.ctl.params.name,
+                               h_level, h_message, h_values)
 
 
 def _joint_point(k: int, point, joint: int, n_joints: int, start_s: float) -> tuple:
