@@ -37,7 +37,7 @@ LABELS = {"electrostatic_gain": "electrostatic gain", "static_stiffness": "stati
 class HealthThresholds:
     """Relative deviations (fractions) and prediction errors (m) that raise WARN / ERROR."""
 
-    warn: dict = field(default_factory=lambda: {"electrostatic_gain": 0.025, "static_stiffness": 0.025,
+    warn: dict = field(default_factory=lambda: {"electrostatic_gain": 0.02, "static_stiffness": 0.02,
                                                 "viscoelastic_stiffness": 0.15, "creep_time": 0.3})
     error: dict = field(default_factory=lambda: {"electrostatic_gain": 0.10, "static_stiffness": 0.10,
                                                  "viscoelastic_stiffness": 0.40, "creep_time": 0.6})

@@ -52,12 +52,14 @@ class TrackerConfig:
     filter_Hz: float = 4.0
     # relative residual noise (of the normalised force balance) and random-walk drift per second
     residual_std: float = 2e-3
-    drift_per_s: tuple = (6e-3, 6e-3, 3e-2, 6e-2)
+    drift_per_s: tuple = (6e-3, 6e-3, 6e-3, 2e-2)
     initial_std: tuple = (0.03, 0.03, 0.1, 0.3)
     max_std: tuple = (0.2, 0.2, 0.5, 1.0)
     max_step: float = 2e-3
     bounds: tuple = ((0.5, 1.5), (0.5, 1.5), (0.3, 3.0), (math.log(0.05), math.log(20.0)))
     max_filtered_acceleration_m_per_s2: float = 0.05
+    # the command acts on the membrane this many samples after it is computed (latency + amplifier update)
+    voltage_delay_samples: int = 1
 
 
 @dataclass
@@ -112,6 +114,7 @@ class ModelTracker:
         self._residual = 0.0
         self.scale = max(abs(params.k1_Pa) * 0.05, 1.0)       # stress scale of the residual, Pa
         self.enabled = True
+        self._u_queue = [math.nan] * cfg.voltage_delay_samples
 
     # ------------------------------------------------------------- per sample
     def update(self, measured_m: float, voltage_V: float, saturated: bool = False) -> None:
@@ -119,6 +122,11 @@ class ModelTracker:
         if not (math.isfinite(measured_m) and math.isfinite(voltage_V)) or measured_m <= 0.0:
             return
         cfg = self.config
+        if self._u_queue:            # the voltage acting on the membrane now: the command of a sample ago
+            self._u_queue.append(float(voltage_V))
+            voltage_V = self._u_queue.pop(0)
+            if math.isnan(voltage_V):
+                voltage_V = self._u_queue[-1]
         m = self.model
         d = float(measured_m)
         s = 1.0 + d * d / m.l0_sq

@@ -30,7 +30,7 @@ def declare_health_parameters(node, tracking_default: bool) -> None:
                  "track the membrane's drift online (electrostatic gain, stiffness, creep time)"
                  + ("; the controller's feedforward and gains follow it" if tracking_default else ""))
     declare_float(node, "health_warn_scale", 1.0,
-                  "WARN thresholds of the tracked ratios x this (defaults: gain, static stiffness 2.5 %; "
+                  "WARN thresholds of the tracked ratios x this (defaults: gain, static stiffness 2 %; "
                   "k1 15 %; creep time 30 %)", 0.1, 100.0)
     declare_float(node, "health_error_scale", 1.0,
                   "ERROR thresholds x this (defaults: 10 %, 10 %, 40 %, 60 %)", 0.1, 100.0)
