@@ -1,4 +1,4 @@
-"""The mock rig driven by ros2_control:  ros2 launch dea_ros ros2_control_mock.launch.py
+r"""The mock rig driven by ros2_control:  ros2 launch dea_ros ros2_control_mock.launch.py
 
 mock_rig_control.launch.py (the simulated membrane, amplifier_node, laser_sensor_node,
 position_controller_node in ``namespace``) plus a controller manager whose hardware is the
@@ -13,8 +13,8 @@ Needs ros-$ROS_DISTRO-ros2-control, -ros2-controllers, -xacro, -robot-state-publ
 interface (humble: ros-humble-topic-based-ros2-control; jazzy: ros-jazzy-joint-state-topic-hardware-interface).
 Move the mass with a trajectory (positions = displacement d in m, + downwards)::
 
-    ros2 action send_goal /dea_trajectory_controller/follow_joint_trajectory \\
-      control_msgs/action/FollowJointTrajectory \\
+    ros2 action send_goal /dea_trajectory_controller/follow_joint_trajectory \
+      control_msgs/action/FollowJointTrajectory \
       "{trajectory: {joint_names: [dea_joint], points: [{positions: [0.0008], time_from_start: {sec: 1}}]}}"
 
 Arguments: those of mock_rig_control.launch.py and ``controller_delay_s``.

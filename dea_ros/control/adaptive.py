@@ -105,9 +105,12 @@ class AdaptiveModel:
             self.last_retune_s = t_s
 
     def due(self, t_s: float) -> MembraneParameters | None:
-        """The tracked parameters when a retune is due at t_s, else None."""
+        """The tracked parameters when a retune is due at t_s (and the reference is at rest), else None."""
         if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
             return None
+        state = self.ctl.state
+        if state is not None and t_s <= state.trajectory.end_s:
+            return None            # not while the reference moves: the next sample at rest
         self.last_retune_s = t_s
         ratios = self.tracker.ratios
         if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
