@@ -18,7 +18,7 @@ setup(
         ("share/" + package_name + "/config/rig", glob("config/rig/*.yaml")),
         ("share/" + package_name + "/config/studies", glob("config/studies/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.py")),
-        ("share/" + package_name + "/urdf", glob("urdf/*.urdf")),
+        ("share/" + package_name + "/urdf", glob("urdf/*.urdf") + glob("urdf/*.xacro")),
     ],
     # rclpy and the message packages come from the ROS 2 installation (apt) or, where no ROS 2
     # is sourced, from requirements-ros-wheels.txt: never from install_requires.

@@ -505,6 +505,8 @@ def main() -> None:
                     help="loop_delay_s of the node on the mock rig (default: config/position_controller.yaml)")
     ap.add_argument("--mock-rig-only", action="store_true",
                     help="only (c) through the ROS mock rig in simulated time (writes control_mock_rig.md)")
+    ap.add_argument("--drift-only", action="store_true",
+                    help="only the drift cases of issue 23 (bench_drift.py; writes control_drift.md)")
     ap.add_argument("--out", default=None, help="default bench/results/control.md (control_timing.md)")
     args = ap.parse_args()
     params_file = args.params
@@ -515,12 +517,14 @@ def main() -> None:
         params_file = found[-1]
     if args.out is None:
         args.out = str(HERE / "results" / ("control_timing.md" if args.timing_only else
+                                           "control_drift.md" if args.drift_only else
                                            "control_mock_rig.md" if args.mock_rig_only else "control.md"))
     ident = load_parameters(params_file)
     truth = load_parameters(args.truth)
     results_dir = Path(args.out).parent
     results_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copy(params_file, results_dir / "control_params.yaml")
+    if Path(params_file).resolve() != (results_dir / "control_params.yaml").resolve():
+        shutil.copy(params_file, results_dir / "control_params.yaml")
 
     latency = args.latency_ms * 1e-3
     phase = latency + 2.5e-4                          # the amplifier's next update after the command arrives
@@ -549,6 +553,10 @@ def main() -> None:
                       f"max {r['sine_max'] * 1e6:.2f} um.", "",
                   f"Sample -> voltage applied by the amplifier (commands matched by value, `loop_delays`): "
                   f"{r['delay']}; lockstep timeouts: {r['lockstep_timeouts']}."]
+        args.timing_s = 0
+    elif args.drift_only:
+        from bench_drift import drift_lines
+        lines += drift_lines(ident, params_file, cfg, rig0)
         args.timing_s = 0
     elif not args.timing_only:
         lines += tracking(args, ident, truth, params_file, cfg, inv, scen, mid, levels, rig0, phase)

@@ -10,11 +10,18 @@
   tracking error between reports;
 * :mod:`.prediction`: :class:`ModelPredictor`, the displacement predicted in real time from stamped applied
   voltages (model_node);
+* :mod:`.streaming`: :class:`StreamedReference`, a reference streamed as timed samples (ros2_control's
+  joint commands);
+* :mod:`.tracking`: :class:`ModelTracker`, the membrane's drift (electrostatic gain, static and viscoelastic
+  stiffness, creep time) estimated online; :mod:`.adaptive`: the controller retuned on the tracked model;
+  :mod:`.health`: what changed, in words, with WARN/ERROR levels (/diagnostics);
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
+from .adaptive import AdaptiveModel, RetunePlan, apply_retune, prepare_retune
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
+from .health import HealthMonitor, HealthReport, HealthThresholds, PredictionErrorStats, describe_drift
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 from .monitor import SampleStream, TrackingWindow
 from .prediction import ModelPredictor
@@ -32,6 +39,8 @@ from .reference import (
     trajectory_from_points,
 )
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
+from .streaming import StreamDecision, StreamedReference
+from .tracking import ModelTracker, TrackedModel, TrackerConfig
 
 __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
@@ -39,4 +48,7 @@ __all__ = [
     "PiecewiseQuintic", "QuinticMove", "SineReference", "Trajectory", "check_trajectory", "plan_move",
     "plan_move_steps", "plan_checks", "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
+    "StreamedReference", "StreamDecision",
+    "ModelTracker", "TrackedModel", "TrackerConfig", "AdaptiveModel", "RetunePlan", "apply_retune", "prepare_retune",
+    "HealthMonitor", "HealthReport", "HealthThresholds", "PredictionErrorStats", "describe_drift",
 ]

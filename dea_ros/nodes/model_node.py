@@ -21,6 +21,13 @@ Such inputs are counted (``superseded_inputs`` on /diagnostics); ``input_timeout
 (default 50 ms) keeps them rare: inputs delayed less than that are never superseded. If the clock jumps back by
 more than ``max_catch_up_s`` (simulated time restarted), the model starts over from there.
 
+Membrane health: model_node also subscribes ``displacement`` (sensor_msgs/Range, the laser) and
+publishes a second DiagnosticStatus "<node>: membrane health": the prediction error (measured minus
+predicted displacement: mean, RMS, max over each report) and, with ``track_model``, the membrane's
+drift tracked online from the applied voltage and the measured displacement
+(:class:`dea_ros.control.ModelTracker`), in words with WARN/ERROR levels (:mod:`.membrane_health`:
+``health_*`` parameters; ``health_sample_period_s`` the laser's sample period).
+
 Parameters: ``params_file`` (a preset name LP1/A1/A2 or a parameters YAML, e.g.
 an identified params.yaml), ``rate_hz``, ``dt_s`` (integration step, default
 1/rate_hz), ``max_catch_up_s``, ``input_timeout_s``. Services: ``~/reset`` (std_srvs/Trigger: back to
@@ -44,6 +51,7 @@ from ..model import load_parameters
 from ..solvers.integrate import RealTimeStepper
 from .common import (
     SENSOR_QOS,
+    TOPIC_DISPLACEMENT,
     TOPIC_DISPLACEMENT_PREDICTED,
     TOPIC_VOLTAGE,
     declare_float,
@@ -52,6 +60,7 @@ from .common import (
     publish_diagnostic,
     stamp_to_ns,
 )
+from .membrane_health import ObserverHealth, declare_health_parameters
 from .runner import run_node
 
 __all__ = ["ModelNode", "main"]
@@ -73,6 +82,10 @@ class ModelNode(Node):
         self.frame_id = declare_str(self, "frame_id", "dea_model", "frame_id of the predictions")
         self.predictor = ModelPredictor(self._load_parameters(self.params_file), self.dt_s, self.max_catch_up_s,
                                         on_gap_reset=self._report_gap_reset)
+        declare_health_parameters(self, tracking_default=True)
+        self.health_period_s = declare_float(self, "health_sample_period_s", 0.001,
+                                             "sample period of the laser (displacement), s", 1e-5, 0.1)
+        self.health = ObserverHealth(self, self.predictor.params, self.health_period_s)
         self.superseded_inputs = 0              # inputs older than the last published prediction
         self.last_published_ns: int | None = None
         self.last_tick_ns: int | None = None     # clock at the previous timer tick (detects jumps back)
@@ -83,6 +96,7 @@ class ModelNode(Node):
         self.pub = self.create_publisher(Range, TOPIC_DISPLACEMENT_PREDICTED, SENSOR_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_voltage, SENSOR_QOS)
+        self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement, SENSOR_QOS)
         self.create_service(Trigger, "~/reset", self.on_reset)
         self.create_service(Trigger, "~/reload", self.on_reload)
         self.timer = self.create_timer(1.0 / self.rate_hz, self.on_timer)
@@ -143,6 +157,10 @@ class ModelNode(Node):
             self.superseded_inputs += 1
         self.max_compute_s = max(self.max_compute_s, time.perf_counter() - t0)
 
+    def on_displacement(self, msg: Range) -> None:
+        """A laser sample: the prediction error and the drift tracker (membrane health)."""
+        self.health.observe(float(msg.range), self.stepper.displacement_m, self.voltage_V)
+
     def on_timer(self) -> None:
         now = self.now_ns()
         previous, self.last_tick_ns = self.last_tick_ns, now
@@ -180,6 +198,7 @@ class ModelNode(Node):
             resp.success = False
             resp.message = f"params_file '{source}': {exc}"
             return resp
+        self.health = ObserverHealth(self, self.predictor.params, self.health_period_s)
         resp.success = True
         resp.message = f"loaded {self.stepper.params.name} from '{source}'"
         return resp
@@ -196,6 +215,9 @@ class ModelNode(Node):
              ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"), ("voltage_V", f"{self.voltage_V:.1f}"),
              ("displacement_m", f"{self.stepper.displacement_m:.9f}")],
         )
+        level, message, values = self.health.status(self.now_ns() * 1e-9)
+        publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: membrane health", predictor.params.name,
+                           level, message, values)
 
 
 def main(args=None) -> None:

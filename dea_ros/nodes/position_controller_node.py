@@ -22,6 +22,12 @@ Topics (relative: namespace ``/dea`` in the launch files; SI units):
   ``joint_name``, positions in m = displacement): followed through its points (C^2 spline or quintic
   Hermite segments); refused as a whole when the actuator cannot follow it; an empty trajectory
   stops at the current reference;
+* subscribes ``joint_commands_topic`` (default ``joint_commands``; sensor_msgs/JointState as ros2_control's
+  topic-based hardware interfaces publish it at the controller manager's rate: joint ``joint_name``,
+  position = d in m, velocity in m/s used as feedforward when present): each sample becomes the
+  reference (:class:`dea_ros.control.StreamedReference`: followed when the actuator can, shaped like
+  a setpoint when it jumps, refused outside the range; NaN commands, sent before a controller claims
+  the joint, are ignored and counted);
 * publishes ``voltage_cmd`` (std_msgs/Float64, V), ``joint_states`` (sensor_msgs/JointState, the
   measured position in m and a filtered velocity in m/s, at ``joint_states_rate_hz``) and the
   tracking error and state on ``/diagnostics``; with ``publish_stamped_command`` also
@@ -39,7 +45,12 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 ``max_voltage_V`` (as amplifier_node: the controller never commands more), ``slew_rate_V_per_s``
 (the amplifier's), ``sample_period_s``, ``loop_delay_s``, ``max_sensitivity``,
 ``max_noise_gain`` (feedback design rule), ``min_move_time_s``, ``feedforward``, ``feedback``,
-``sensor_timeout_s``, ``joint_name``, ``joint_states_rate_hz``, ``autostart``.
+``sensor_timeout_s``, ``joint_name``, ``joint_commands_topic``, ``joint_states_rate_hz``, ``autostart``;
+membrane health (:mod:`.membrane_health`): ``track_model`` (online tracking of the membrane's drift; the
+feedforward and the gains follow the tracked model, retuned in a worker thread; false: the identified
+model throughout), ``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``,
+``health_prediction_error_m``, ``health_persistence_s``. The second DiagnosticStatus
+"<node>: membrane health" says what changed in words, with the tracked ratios and the reachable range.
 """
 from __future__ import annotations
 
@@ -58,6 +69,7 @@ from ..control import (
     ControllerConfig,
     PositionController,
     SampleStream,
+    StreamedReference,
     TrackingWindow,
     UnreachableReferenceError,
     trajectory_from_points,
@@ -77,6 +89,8 @@ from .common import (
     s_to_stamp,
     stamp_to_s,
 )
+from .joint_commands import parse_joint_command
+from .membrane_health import ControllerHealth, declare_health_parameters
 from .runner import run_nodes
 
 __all__ = ["PositionControllerNode", "main", "TOPIC_SETPOINT", "TOPIC_TRAJECTORY", "TOPIC_JOINT_STATES"]
@@ -88,6 +102,9 @@ LATEST_ONLY_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=
 TOPIC_SETPOINT = "displacement_setpoint"
 TOPIC_TRAJECTORY = "joint_trajectory"
 TOPIC_JOINT_STATES = "joint_states"
+#: ros2_control's joint commands: the newest one only (the interfaces publish reliable, keep last 1)
+JOINT_COMMAND_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=1,
+                               durability=DurabilityPolicy.VOLATILE)
 
 
 class PositionControllerNode(LifecycleNode):
@@ -111,6 +128,8 @@ class PositionControllerNode(LifecycleNode):
         declare_float(self, "sensor_timeout_s", 0.05, "stop commanding after this long without a laser sample, s",
                       0.002, 10.0)
         declare_str(self, "joint_name", "dea_joint", "the prismatic joint (URDF) carried by joint_states/trajectories")
+        declare_str(self, "joint_commands_topic", "joint_commands",
+                    "sensor_msgs/JointState commands of ros2_control's topic-based hardware interface")
         declare_float(self, "joint_states_rate_hz", 100.0, "joint_states publication rate, Hz", 0.1, 2000.0)
         declare_float(self, "diagnostics_rate_hz", 1.0, "diagnostics rate, Hz", 0.1, 50.0)
         declare_bool(self, "lockstep_ack", False,
@@ -118,7 +137,9 @@ class PositionControllerNode(LifecycleNode):
                      "for mock_hardware_node's lockstep_topics")
         declare_bool(self, "publish_stamped_command", False,
                      "also publish ~/command_stamped (BatteryState: the command stamped with its sample's time)")
+        declare_health_parameters(self, tracking_default=True)
         self.ctl: PositionController | None = None
+        self.health: ControllerHealth | None = None
         self.active = False
         self.sample_period_s = float(self.p("sample_period_s"))   # (again at configure)
         self._reset_runtime()
@@ -148,6 +169,9 @@ class PositionControllerNode(LifecycleNode):
         self.last_accept = ""
         self.max_compute_s = 0.0
         self.implausible_starts = 0
+        self.joint_stream = StreamedReference()   # ros2_control's joint commands
+        self.joint_commands = 0
+        self.nan_joint_commands = 0
 
     def make_config(self, params) -> ControllerConfig:
         """The controller's settings from the parameters (the voltage ceiling from the membrane)."""
@@ -174,6 +198,7 @@ class PositionControllerNode(LifecycleNode):
             self.get_logger().error(f"configure failed: parameter 'params_file' ({source!r}) or limits: {exc}")
             self.ctl = None
             return TransitionCallbackReturn.FAILURE
+        self.health = ControllerHealth(self, self.ctl, float(self.p("sample_period_s")))
         self.voltage_pub = self.create_lifecycle_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
         self.joint_pub = self.create_lifecycle_publisher(JointState, TOPIC_JOINT_STATES, 10)
         self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -190,6 +215,8 @@ class PositionControllerNode(LifecycleNode):
             self.create_subscription(Range, TOPIC_DISPLACEMENT, self.on_displacement, LATEST_ONLY_QOS),
             self.create_subscription(Float64, TOPIC_SETPOINT, self.on_setpoint, COMMAND_QOS),
             self.create_subscription(JointTrajectory, TOPIC_TRAJECTORY, self.on_trajectory, COMMAND_QOS),
+            self.create_subscription(JointState, self.p("joint_commands_topic"), self.on_joint_command,
+                                     JOINT_COMMAND_QOS),
         ]
         self.sample_period_s = float(self.p("sample_period_s"))
         timeout = float(self.p("sensor_timeout_s"))
@@ -245,6 +272,9 @@ class PositionControllerNode(LifecycleNode):
         self.own_timers, self.own_subs = [], []
         self.voltage_pub = self.joint_pub = self.diag_pub = self.stamped_pub = self.ack_pub = None
         self.ctl = None
+        if self.health is not None:
+            self.health.close()
+            self.health = None
 
     def shutdown_safely(self) -> None:
         """SIGINT/SIGTERM: stop commanding (the amplifier ramps down on its own)."""
@@ -313,6 +343,32 @@ class PositionControllerNode(LifecycleNode):
         except (ValueError, UnreachableReferenceError) as exc:
             self._refuse("trajectory", exc)
 
+    def on_joint_command(self, msg: JointState) -> None:
+        """ros2_control's command (topic-based hardware interface): one sample of a streamed reference."""
+        if not self.active or self.ctl is None:
+            return
+        try:
+            cmd = parse_joint_command(msg, self.p("joint_name"))
+        except ValueError as exc:
+            self._refuse("joint command", exc)
+            return
+        if cmd is None:
+            return                                  # not addressed to this joint
+        if not cmd.valid:
+            self.nan_joint_commands += 1            # the interface's command before a controller claims the joint
+            return
+        if not self.ctl.started:
+            self._refuse("joint command", RuntimeError("no laser sample yet: the controller has not started"))
+            return
+        try:
+            decision = self.joint_stream.command(self.ctl, self._ref_time(), cmd.position_m, cmd.velocity_m_per_s)
+        except UnreachableReferenceError as exc:
+            self._refuse("joint command", exc)
+            return
+        self.joint_commands += 1
+        if decision.kind == "shaped":
+            self._accept(decision.text)
+
     # -------------------------------------------------------------------- loop
     def on_displacement(self, msg: Range) -> None:
         if not self.active or self.ctl is None:
@@ -344,6 +400,7 @@ class PositionControllerNode(LifecycleNode):
         if self.ack_pub is not None:
             self.ack_msg.stamp = msg.header.stamp
             self.ack_pub.publish(self.ack_msg)
+        self.health.observe(t, d, out)
         self.commands += 1
         self.last_output = out
         self.window.add(out)
@@ -419,6 +476,8 @@ class PositionControllerNode(LifecycleNode):
             ("samples", stream.samples), ("commands", self.commands), ("saturated_commands", window.saturations),
             ("stale_samples", stream.stale), ("skipped_samples", stream.skipped),
             ("invalid_samples", stream.invalid), ("implausible_starts", self.implausible_starts),
+            ("joint_commands", self.joint_commands), ("joint_commands_shaped", self.joint_stream.shaped),
+            ("nan_joint_commands", self.nan_joint_commands),
             ("sensor_losses", self.sensor_losses), ("refused", self.refused), ("last_refusal", self.last_refusal),
             ("last_accepted", self.last_accept), ("reachable_min_m", f"{lo:.9f}"), ("reachable_max_m", f"{hi:.9f}"),
             ("max_voltage_V", f"{self.ctl.max_voltage_V:.1f}"), ("max_compute_ms", f"{self.max_compute_s * 1e3:.3f}"),
@@ -427,6 +486,10 @@ class PositionControllerNode(LifecycleNode):
         publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: position control", self.ctl.params.name,
                            level, message, values)
         window.clear()
+        if self.health is not None and stream.last_t_s is not None:
+            h_level, h_message, h_values = self.health.status(stream.last_t_s, out.reference_m if out else None)
+            publish_diagnostic(self, self.diag_pub, f"{self.get_name()}: membrane health", self.ctl.params.name,
+                               h_level, h_message, h_values)
 
 
 def _joint_point(k: int, point, joint: int, n_joints: int, start_s: float) -> tuple:

@@ -1,0 +1,169 @@
+"""Drift cases of the position control benchmark (issue 23): bench_control.py --drift-only.
+
+The controller's model is the demo's IDENTIFIED parameters; the plant is the same membrane after a
+drift (eps_r -6 %: electrode ageing; k1 +25 % with eta2 x0.5; eta1 x0.3: faster creep; an extra,
+unmodelled 1 ms of loop delay; and ours: eps_r -3 % with the hyperelastic stress -3 %; a 10 %
+heavier payload), on the core's simulated rig (RK4 0.25 ms, laser 1 kHz with 1 um noise and the
+ILD1320 quantisation, the amplifier's safety core with its slew limit). Each run, in one closed loop:
+
+* 0-10 s "ordinary operation": setpoints across the reachable range every second;
+* 10-12 s: four 40 um steps around mid-stroke (+40, -40, -40, +40 um; 0.5 s each): overshoot and
+  2 % settling time of the TRUE displacement from the step command (shaped by the controller);
+* 12-14 s: a 12 Hz 25 um sine around mid-stroke (faded in over 2 periods): RMS error from 12.5 s.
+
+Twice per case: with the identified model fixed (``track_model`` off) and with online tracking
+(control/tracking.py, control/adaptive.py: feedforward and gains retuned every 2 s). Drift
+detection (control/health.py with its default thresholds): the time of the first WARN for eps_r
+-3 % and for the static stiffness -3 % under the same ordinary operation, and the WARNs during
+10 minutes of the unchanged plant.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from dea_ros.control import (
+    AdaptiveModel,
+    HealthMonitor,
+    ModelInverse,
+    PositionController,
+    SineReference,
+    run_closed_loop,
+)
+
+__all__ = ["drift_cases", "drift_lines"]
+
+WARMUP_S = 10.0
+STEP_M = 40e-6
+
+
+def drift_cases(p):
+    """(name, plant parameters, extra loop delay s) for the identified membrane p."""
+    sc = lambda xs, f: tuple(x * f for x in xs)  # noqa: E731
+    return [
+        ("identified plant", p, 0.0),
+        ("eps_r -6 %", p.replace(relative_permittivity=p.relative_permittivity * 0.94), 0.0),
+        ("k1 +25 %, eta2 x0.5", p.replace(k1_Pa=p.k1_Pa * 1.25, eta2_Pa_s=p.eta2_Pa_s * 0.5), 0.0),
+        ("eta1 x0.3", p.replace(eta1_Pa_s=p.eta1_Pa_s * 0.3), 0.0),
+        ("+1 ms loop delay", p, 1e-3),
+        ("eps_r -3 %, sigma_h -3 %", p.replace(relative_permittivity=p.relative_permittivity * 0.97,
+                                               beta_Pa=sc(p.beta_Pa, 0.97), gamma_Pa=sc(p.gamma_Pa, 0.97)), 0.0),
+        ("payload +10 %", p.replace(mass_kg=p.mass_kg * 1.10), 0.0),
+    ]
+
+
+def _run(ident, plant, cfg, rig0, extra_delay_s, tracking, seed):
+    ctl = PositionController(ident, cfg)
+    ad = AdaptiveModel(ctl, enabled=tracking)
+    lo, hi = ctl.reachable_range_m
+    mid = 0.5 * (lo + hi)
+    warm = [lo + f * (hi - lo) for f in (0.3, 0.55, 0.75, 0.45, 0.65, 0.35, 0.6, 0.4, 0.7, 0.5)]
+    steps = [mid + STEP_M, mid, mid - STEP_M, mid]
+    sine = SineReference(mid, 25e-6, 12.0, start_s=WARMUP_S + 2.0, fade_periods=2.0)
+    rig = dataclasses.replace(rig0, params=plant, seed=seed, latency_s=rig0.latency_s + extra_delay_s,
+                              amplifier_phase_s=rig0.amplifier_phase_s + extra_delay_s)
+
+    def loop(t, d):
+        if not ctl.started:
+            ctl.start(t, d)
+        k = int(round(t * 1000))
+        if k < WARMUP_S * 1000 and k % 1000 == 0:
+            ctl.set_setpoint(t, warm[k // 1000])
+        elif WARMUP_S * 1000 <= k < (WARMUP_S + 2.0) * 1000 and k % 500 == 0:
+            ctl.set_setpoint(t, steps[(k - int(WARMUP_S * 1000)) // 500])
+        elif k == int(round((WARMUP_S + 2.0) * 1000)):
+            ctl.set_trajectory(t, sine)
+        out = ctl.update(t, d)
+        ad.step(t, d, out)
+        return out.voltage_V
+
+    res = run_closed_loop(rig, loop, WARMUP_S + 4.0, initial_voltage_V=_u0(plant, cfg, warm[0]))
+    metrics = []
+    previous = mid                              # the warm-up ends here (warm[-1] = mid)
+    for j, target in enumerate(steps):
+        t0 = WARMUP_S + 0.5 * j
+        m = (res.time_s >= t0) & (res.time_s < t0 + 0.5)
+        t, e = res.time_s[m] - t0, res.true_m[m] - target
+        size = target - previous
+        over = max(0.0, float(np.max(np.sign(size) * e))) / abs(size) * 100
+        outside = np.nonzero(np.abs(e) > 0.02 * abs(size))[0]
+        settle = float(t[outside[-1]] + 1e-3) if outside.size else 0.0
+        metrics.append((over, settle if not outside.size or outside[-1] < t.size - 1 else math.inf))
+        previous = target
+    m = res.time_s >= WARMUP_S + 2.5
+    e = res.true_m[m] - sine.sample_many(res.time_s[m])[0]
+    return metrics, float(np.sqrt(np.mean(e ** 2))), ad
+
+
+def _u0(plant, cfg, d0):
+    inv = ModelInverse(plant, cfg.max_voltage_V)
+    return inv.static_voltage(min(max(d0, inv.reachable_range_m[0]), inv.reachable_range_m[1]), check=False)
+
+
+def _first_warning(ident, plant, cfg, rig0, seconds, seed):
+    """Ordinary operation (setpoints every 1.5 s) with the health monitor: [(t, message)] of WARN+ reports."""
+    ctl = PositionController(ident, cfg)
+    ad = AdaptiveModel(ctl, enabled=True)
+    mon = HealthMonitor()
+    lo, hi = ctl.reachable_range_m
+    rng = np.random.default_rng(seed)
+    targets = lo + (0.25 + 0.5 * rng.random(int(seconds / 1.5) + 2)) * (hi - lo)
+    found = []
+
+    def loop(t, d):
+        if not ctl.started:
+            ctl.start(t, d)
+        k = int(round(t * 1000))
+        if k % 1500 == 0:
+            ctl.set_setpoint(t, float(targets[k // 1500]))
+        out = ctl.update(t, d)
+        ad.observe(t, d, out)
+        if k % 1000 == 0:
+            rep = mon.assess(t, ad.tracker.ratios)
+            if rep.level >= 1:
+                found.append((t, rep.message))
+        return out.voltage_V
+
+    run_closed_loop(dataclasses.replace(rig0, params=plant, seed=seed), loop, seconds,
+                    initial_voltage_V=_u0(plant, cfg, float(targets[0])))
+    return found
+
+
+def drift_lines(ident, params_file, cfg, rig0, quiet_s=600.0, seed=7) -> list:
+    t_start = time.perf_counter()
+    lines = [f"Controller model: `{params_file}` (identified by the demo); plants: that membrane after the drift; "
+             f"laser 1 kHz, noise {rig0.noise_m * 1e6:g} um; command at the amplifier {rig0.latency_s * 1e3:g} ms "
+             f"after the sample; slew {rig0.slew_rate_V_per_s:g} V/s; noise seed {seed}. After {WARMUP_S:g} s of "
+             "setpoints across the range: four 40 um steps (overshoot, 2 % settling of the true displacement), "
+             "then a 12 Hz 25 um sine (RMS error after the fade-in).", "",
+             "| plant | model | overshoot median / max [%] | 2 % settling median / max [ms] | 12 Hz sine RMS [um] | "
+             "tracked gain / static / k1 / creep time | retunes |",
+             "|---|---|---|---|---|---|---|"]
+    for name, plant, delay in drift_cases(ident):
+        for tracking in (False, True):
+            metrics, rms, ad = _run(ident, plant, cfg, rig0, delay, tracking, seed)
+            over = [m[0] for m in metrics]
+            sett = [m[1] * 1e3 for m in metrics]
+            r = ad.tracker.ratios
+            ratios = " / ".join(f"{v:.3f}" for v in r.values()) if tracking else "-"
+            lines.append(f"| {name} | {'tracked' if tracking else 'identified (fixed)'} | {np.median(over):.1f} / "
+                         f"{np.max(over):.1f} | {np.median(sett):.0f} / {np.max(sett):.0f} | {rms * 1e6:.2f} | "
+                         f"{ratios} | {ad.retunes} |")
+        print(f"{name}: done ({time.perf_counter() - t_start:.0f} s)", flush=True)
+    sc = lambda xs, f: tuple(x * f for x in xs)  # noqa: E731
+    lines += ["", "Drift detection (membrane health, default thresholds: WARN at 2 % for the gain and the static "
+              "stiffness, 3 s persistence), ordinary operation (setpoints every 1.5 s):", "",
+              "| plant | first WARN after [s] | message |", "|---|---|---|"]
+    for name, plant in (("eps_r -3 %", ident.replace(relative_permittivity=ident.relative_permittivity * 0.97)),
+                        ("static stiffness -3 % (sigma_h x0.97)",
+                         ident.replace(beta_Pa=sc(ident.beta_Pa, 0.97), gamma_Pa=sc(ident.gamma_Pa, 0.97)))):
+        found = _first_warning(ident, plant, cfg, rig0, 60.0, seed)
+        lines.append(f"| {name} | {found[0][0]:.0f} | {found[0][1]} |" if found else f"| {name} | none in 60 s | |")
+    found = _first_warning(ident, ident, cfg, rig0, quiet_s, seed + 1)
+    lines.append(f"| unchanged, {quiet_s / 60:g} min | {len(found)} WARN reports | "
+                 f"{found[0][1] if found else 'none'} |")
+    lines += ["", f"({time.perf_counter() - t_start:.0f} s wall for this section.)"]
+    return lines

@@ -1,0 +1,132 @@
+"""The controller on the tracked model: the feedforward and the gain design follow the membrane's drift.
+
+:class:`AdaptiveModel` feeds :class:`~.tracking.ModelTracker` with every sample the controller sees
+(measured d, commanded voltage, saturation) and, every ``retune_period_s``, when a tracked ratio
+moved by more than ``retune_threshold`` since the model in use, retunes the controller in two
+steps, so that the slow part can run off the control loop (a node: in a worker thread):
+
+* :func:`prepare_retune` (slow: the gain design takes ~0.1 s): the inverse (eqs. 5, 20 with the
+  tracked parameters) and the feedback gains (pole placement on it, as at start-up);
+* :func:`apply_retune` (fast): swaps them into the controller, bumpless -- the integrator absorbs
+  the change of the feedforward at the current reference, so the command does not jump -- and
+  keeps the reference, the strain integrator's state and the PID's state.
+
+``enabled = False`` stops both the tracking updates and the retuning (the identified model stays).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..model import MembraneParameters
+from .controller import ControlOutput, PositionController
+from .feedback import FeedbackGains, design_gains
+from .inverse import ModelInverse
+from .tracking import ModelTracker, TrackerConfig
+
+__all__ = ["RetunePlan", "prepare_retune", "apply_retune", "AdaptiveModel"]
+
+
+@dataclass(frozen=True)
+class RetunePlan:
+    """The controller's model parts for one set of parameters (built by :func:`prepare_retune`)."""
+
+    params: MembraneParameters
+    inverse: ModelInverse
+    gains: FeedbackGains
+    ratios: dict
+
+
+def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None) -> RetunePlan:
+    """The inverse and the gains of ``ctl``'s configuration for ``params`` (slow; touches nothing of ctl)."""
+    cfg = ctl.config
+    inverse = ModelInverse(params, cfg.max_voltage_V)
+    lo, hi = inverse.reachable_range_m
+    d_op = 0.5 * (lo + hi) if cfg.operating_point_m is None else float(cfg.operating_point_m)
+    gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
+                         cfg.max_noise_gain)
+    return RetunePlan(params, inverse, gains, dict(ratios or {}))
+
+
+def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = None) -> None:
+    """Swap ``plan`` into ``ctl`` without a jump of the command (at the reference of time ``t_s``)."""
+    old_inverse = ctl.inverse
+    started = ctl.started and t_s is not None and ctl.strain is not None
+    if started:
+        d, v, a = ctl.reference_at(t_s)
+        eps1 = ctl.strain.eps1
+        pid = ctl.pid
+        e = pid.last_error or 0.0
+        g_old = pid.gains
+        a_fb_old = g_old.kp_per_s2 * e + g_old.ki_per_s3 * pid.integral + g_old.kd_per_s * pid.derivative
+        u2_fb_old = a_fb_old / float(old_inverse.input_gain(d))
+        delta_ff = plan.inverse.dynamic_u2(d, v, a, eps1) - old_inverse.dynamic_u2(d, v, a, eps1)
+    ctl.params = plan.params
+    ctl.inverse = plan.inverse
+    ctl.max_voltage_V = min(ctl.config.max_voltage_V, plan.inverse.top_voltage_V)
+    ctl.gains = plan.gains
+    ctl.pid.gains = plan.gains
+    if ctl.strain is not None:
+        ctl.strain.inverse = plan.inverse
+        ctl.strain.rate = plan.inverse.model.relax_rate
+    if started and math.isfinite(delta_ff) and plan.gains.ki_per_s3 > 0.0:
+        g = plan.gains
+        a_fb_new = (u2_fb_old - delta_ff) * float(plan.inverse.input_gain(d))
+        rest = g.kp_per_s2 * e + g.kd_per_s * pid.derivative
+        pid.integral = (a_fb_new - rest) / g.ki_per_s3
+
+
+class AdaptiveModel:
+    """Online tracking + retuning of one :class:`PositionController` (no ROS, no threads).
+
+    Per sample: :meth:`observe` (after ``ctl.update``). :meth:`due` says when a retune should be
+    prepared (returns the tracked parameters); the caller runs :func:`prepare_retune` (here or in a
+    worker) and hands the plan to :meth:`apply`.
+    """
+
+    def __init__(self, ctl: PositionController, config: TrackerConfig | None = None,
+                 retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True):
+        self.ctl = ctl
+        self.identified = ctl.params
+        self.tracker = ModelTracker(ctl.params, config)
+        self.retune_period_s = float(retune_period_s)
+        self.retune_threshold = float(retune_threshold)
+        self.enabled = bool(enabled)
+        self.tracker.enabled = self.enabled
+        self.in_use = {name: 1.0 for name in self.tracker.ratios}
+        self.last_retune_s: float | None = None
+        self.retunes = 0
+
+    def observe(self, t_s: float, measured_m: float, out: ControlOutput) -> None:
+        """One sample: the measured displacement and the controller's output for it."""
+        if self.enabled:
+            self.tracker.update(measured_m, out.voltage_V, out.saturated != 0)
+        if self.last_retune_s is None:
+            self.last_retune_s = t_s
+
+    def due(self, t_s: float) -> MembraneParameters | None:
+        """The tracked parameters when a retune is due at t_s (and the reference is at rest), else None."""
+        if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
+            return None
+        state = self.ctl.state
+        if state is not None and t_s <= state.trajectory.end_s:
+            return None            # not while the reference moves: the next sample at rest
+        self.last_retune_s = t_s
+        ratios = self.tracker.ratios
+        if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
+            return None
+        return self.tracker.tracked_parameters()
+
+    def apply(self, plan: RetunePlan, t_s: float) -> None:
+        apply_retune(self.ctl, plan, t_s)
+        self.in_use = dict(plan.ratios)
+        self.retunes += 1
+
+    def step(self, t_s: float, measured_m: float, out: ControlOutput) -> bool:
+        """observe + (synchronously) prepare and apply a due retune: for simulations; True when retuned."""
+        self.observe(t_s, measured_m, out)
+        params = self.due(t_s)
+        if params is None:
+            return False
+        self.apply(prepare_retune(self.ctl, params, self.tracker.ratios), t_s)
+        return True

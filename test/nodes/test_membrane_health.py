@@ -1,0 +1,117 @@
+"""Membrane health on /diagnostics over real rclpy: model_node (prediction error + tracked drift) and
+position_controller_node (tracked drift, reachable range), each against a plant that is not its model."""
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import BatteryState, Range
+from std_msgs.msg import Float64
+
+from dea_ros.control import ModelInverse
+from dea_ros.model import load_parameters, preset
+from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range, make_voltage_state
+from dea_ros.nodes.model_node import ModelNode
+from dea_ros.solvers.integrate import RealTimeStepper
+
+_spec = importlib.util.spec_from_file_location("pc_test", Path(__file__).parent / "test_position_controller_node.py")
+PC = importlib.util.module_from_spec(_spec)   # start_controller, stop, Plant: the lockstep harness
+_spec.loader.exec_module(PC)
+
+
+def _health(diags, suffix):
+    return [s for a in diags for s in a.status if s.name.endswith(suffix)]
+
+
+def test_model_node_reports_the_prediction_error_and_the_drift_in_words(ros_context, spin_until):
+    a2 = preset("A2")
+    truth = a2.replace(name="aged", relative_permittivity=a2.relative_permittivity * 0.94)   # electrode ageing
+    node = ModelNode(context=ros_context, parameter_overrides=[
+        Parameter("params_file", value="A2"), Parameter("rate_hz", value=1000.0),
+        Parameter("health_persistence_s", value=0.0)])
+    peer = Node("rig", context=ros_context)
+    volt_pub = peer.create_publisher(BatteryState, "voltage", SENSOR_QOS)
+    disp_pub = peer.create_publisher(Range, "displacement", SENSOR_QOS)
+    diags = []
+    peer.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(peer)
+    assert spin_until(ex, lambda: volt_pub.get_subscription_count() > 0 and disp_pub.get_subscription_count() > 0)
+    inv = ModelInverse(truth, 3150.0)
+    lo, hi = inv.reachable_range_m
+    levels = [inv.static_voltage(lo + f * (hi - lo)) for f in (0.3, 0.6, 0.45, 0.75)]
+    plant = RealTimeStepper(truth, dt_s=2.5e-4, initial_voltage_V=levels[0])
+    t0_ns = (node.now_ns() // 1_000_000_000 + 1_000_000) * 1_000_000_000     # far future: no timer path
+    for k in range(4000):
+        u = levels[(k // 800) % len(levels)]
+        n_in, n_pub = node.health.errors.n, node.published
+        for _ in range(3):        # best effort: a message may be dropped; send it again
+            volt_pub.publish(make_voltage_state(u, t0_ns + k * 1_000_000, True))
+            if spin_until(ex, lambda: node.published > n_pub, timeout_s=0.5):
+                break
+        for _ in range(3):
+            disp_pub.publish(make_range(plant.displacement_m, t0_ns + k * 1_000_000, "dea_laser"))
+            if spin_until(ex, lambda: node.health.errors.n > n_in, timeout_s=0.5):
+                break
+        for _ in range(4):
+            plant.step(u)
+    node.publish_diagnostics()
+    assert spin_until(ex, lambda: _health(diags, "membrane health"), timeout_s=5.0)
+    status = _health(diags, "membrane health")[-1]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level in (DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+    assert "electrostatic gain" in status.message and "below the identified model" in status.message
+    assert "electrode ageing" in status.message
+    assert 0.90 < float(values["tracked_electrostatic_gain_ratio"]) < 0.985
+    windows = [{kv.key: kv.value for kv in st.values} for st in _health(diags, "membrane health")]
+    windows = [w for w in windows if int(w.get("prediction_samples", "0")) > 20]
+    assert windows                                                     # the error statistics of each report
+    assert max(abs(float(w["prediction_error_mean_m"])) for w in windows) > 1e-6   # the fixed model is off
+    ex.shutdown()
+    node.destroy_node()
+    peer.destroy_node()
+
+
+def test_position_controller_node_reports_drift_and_the_current_range(ros_context, spin_until):
+    """The controller's model (A2) is not the mock rig's membrane (eps_r 2.45, not 2.63; k1 +15 %...)."""
+    ns = "/pc_health"
+    inv = ModelInverse(load_parameters(PC.TRUTH), PC.U_MAX)
+    lo, hi = inv.reachable_range_m
+    d_start = lo + 60e-6
+    proc = PC.start_controller(ns, "sensor_timeout_s:=2.0", "health_persistence_s:=0.5", "diagnostics_rate_hz:=5.0")
+    node = Node("plant_health", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    try:
+        plant = PC.Plant(node, ns, inv.static_voltage(d_start))
+        set_pub = node.create_publisher(Float64, f"{ns}/displacement_setpoint", COMMAND_QOS)
+        diags = []
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(ex, lambda: plant.pub.get_subscription_count() > 0, timeout_s=30.0), PC.H.stderr_of(proc)
+        assert spin_until(ex, lambda: plant.sample(ex, spin_until, timeout_s=0.2), timeout_s=20.0)
+        targets = [lo + f * (hi - lo) for f in (0.35, 0.65, 0.45, 0.75, 0.3, 0.6)]
+        for k in range(4200):
+            if k % 700 == 0:
+                set_pub.publish(Float64(data=targets[(k // 700) % len(targets)]))
+            assert plant.sample(ex, spin_until)
+        spin_until(ex, lambda: False, timeout_s=0.5)
+        health = _health(diags, "membrane health")
+        assert health
+        status = health[-1]
+        values = {kv.key: kv.value for kv in status.values}
+        print(status.level, status.message, values)
+        assert status.level in (DiagnosticStatus.WARN, DiagnosticStatus.ERROR)
+        assert "electrostatic gain" in status.message and "below" in status.message
+        assert float(values["tracked_electrostatic_gain_ratio"]) < 0.98
+        assert int(values["retunes"]) >= 1                       # the controller runs on the tracked model
+        assert float(values["tracked_reachable_min_m"]) < float(values["tracked_reachable_max_m"])
+        d_end = np.array([h[1] for h in plant.history[-100:]])
+        assert abs(d_end.mean() - targets[5]) < 2e-6             # still controlling after the retunes
+    finally:
+        PC.stop(proc)
+        ex.shutdown()
+        node.destroy_node()
