@@ -383,7 +383,8 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
     if at_bound:
         warnings.append(f"joint refinement: {', '.join(at_bound)} ended at the search bound")
     dof = max(res.size - len(values), 1)
-    return JointFitResult(jacobian=jac_phys, row_records=_row_records(objective),
+    return JointFitResult(
+        jacobian=jac_phys, row_records=_row_records(objective),
         parameters=params, statistics=stats, names=objective.names,
         curvature_fitted="sigma_h''(1)_Pa" in objective.names,
         curvature_identified=identified,

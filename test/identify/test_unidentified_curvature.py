@@ -3,7 +3,8 @@ parameters. A softening membrane unlike the presets (sigma_h'(1) < 0, creep time
 17 sine frequencies, a step and static points; data by converged forward integration (DOP853 shooting,
 dea_ros.identify.synth; never the harmonic balance the fit uses), 1 um laser noise, two noise seeds.
 Holding sigma_h''(1) at the base value (what the identification did before) biases eps_r, k1 and
-sigma_h'(1) (by 2-3 of the free fit's standard errors, 14 of its own for k1); the reported result (the fit with it free) has intervals that contain the truth."""
+sigma_h'(1) (by 2-3 of the free fit's standard errors, 14 of its own for k1); the reported result
+(the fit with it free) has intervals that contain the truth."""
 from __future__ import annotations
 
 import math
