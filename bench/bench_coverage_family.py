@@ -199,9 +199,9 @@ def main() -> None:
     done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     if not args.table_only:
         have = {(r["membrane"], r["kind"], r["seed"]) for r in done}
-        for p, f_r in family(args.membranes):
-            true_peak = _peak(p, 0.9 * f_r, 1.1 * f_r)
-            for seed in range(1, args.seeds + 1):
+        members = [(p, f_r, _peak(p, 0.9 * f_r, 1.1 * f_r)) for p, f_r in family(args.membranes)]
+        for seed in range(1, args.seeds + 1):       # seed-major: an interrupted run has every membrane
+            for p, f_r, true_peak in members:
                 for kind in args.sets.split(","):
                     if (p.name, kind, seed) in have:
                         continue
