@@ -13,6 +13,9 @@ For every parameter: the largest error over the seeds and in how many seeds the 
 covers the truth; sigma_h''(1): identified or not, and its error when identified; the model's
 resonance peak against the true model's (both located on the branch).
 
+The family of membranes of issue 21 (20 membranes unlike the presets, the paper's four and 17
+frequencies, quantised laser, random start phases): bench/bench_coverage_family.py.
+
 Run: python bench/bench_coverage.py [--seeds 10] [--first-seed 1] [--kinds wide,paper] [--out coverage.md]
 (markdown to stdout and bench/results/<out>). The z column: (value - truth) / std. error over the
 seeds, mean (with its standard error) and standard deviation: a real under-coverage shows as a mean

@@ -53,8 +53,10 @@ def _candidates(sweep, f: float) -> list:
 
 def _choose(data_kind, model_kind, cands: list, stable: list, meas: float, f: float) -> tuple:
     """(branch name, SweepPoint) the record is fitted with, or None, and the reason when None."""
-    def pick(names, pool):
-        cand = [(n, pt) for n, pt in pool if n in names or (names == "T" and n != PRIMARY)]
+    def pick(primary: bool, pool):
+        # the T/2 branch by its exact name, or any period-doubled one (never a substring match:
+        # "T" is in "T/2")
+        cand = [(n, pt) for n, pt in pool if (n == PRIMARY) == primary]
         return min(cand, key=lambda c: abs(c[1].d_rms_m - meas)) if cand else None
 
     want = data_kind or model_kind
@@ -63,14 +65,14 @@ def _choose(data_kind, model_kind, cands: list, stable: list, meas: float, f: fl
         reason = ("the record is quasi-periodic (no period in its samples)" if data_kind else
                   "the model has no stable periodic response there (quasi-periodic: a torus band)")
     elif want == "period-doubled":
-        chosen = pick("T", stable) or pick("T", cands)
+        chosen = pick(False, stable) or pick(False, cands)
         if chosen is None:
             reason = ("the record is period-doubled but the model has no period-doubled orbit at "
                       f"{f:g} Hz with the current parameters")
     elif want in ("periodic", "coexisting"):
         pool = stable or cands
         if data_kind == "periodic":
-            chosen = pick(PRIMARY, pool) or pick(PRIMARY, cands)
+            chosen = pick(True, pool) or pick(True, cands)
         else:
             chosen = min(pool, key=lambda c: abs(c[1].d_rms_m - meas)) if pool else None
         if chosen is None:

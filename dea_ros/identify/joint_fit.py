@@ -57,7 +57,7 @@ from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static
 from ..errors import JointFitError
 
 __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError", "CURVATURE_REL_CI_LIMIT",
-           "JOINT_NAMES"]
+           "JOINT_NAMES", "CURVATURE_BOUND_PA"]
 
 #: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
 CURVATURE_REL_CI_LIMIT = 0.5
@@ -66,6 +66,8 @@ JOINT_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''
                "eta1_Pa_s", "eta2_Pa_s")
 _UNITS = (1e5, 1e5, 1e6, 1e7)   # optimizer units of the stress combinations (Pa)
 _STRESS_BOUND = (np.inf, np.inf, 5e8, 5e9)   # |sigma_h''(1)|, |sigma_h'''(1)| bounds of the search (Pa)
+#: |sigma_h''(1)| bound of the search (Pa, derivative in s): the plausible range of the curvature.
+CURVATURE_BOUND_PA = _STRESS_BOUND[2]
 
 
 @dataclass
@@ -88,6 +90,10 @@ class JointFitResult:
     wall_time_s: float
     warnings: list = field(default_factory=list)
     message: str = ""
+    #: weighted Jacobian at the optimum, d residual / d parameter in the statistics' units (ln for
+    #: k1, eta1, eta2), one row per residual; ``row_records`` names the record of each row
+    jacobian: np.ndarray | None = None
+    row_records: tuple = ()
 
     @property
     def fit_frequencies_Hz(self) -> np.ndarray:
@@ -341,6 +347,17 @@ def _scatter_sigma(objective: JointObjective, theta, point_s) -> float:
     return max(sig, 1e-9)
 
 
+def _row_records(objective: JointObjective) -> tuple:
+    """The record of each residual row, in the order of :meth:`JointObjective.evaluate`."""
+    rows = []
+    if objective.static is not None:
+        rows += ["static points"] * objective.static.n_points
+    for k, step in enumerate(objective.steps):
+        rows += [f"step {k + 1} ({step.source})"] * step.n_samples
+    rows += [f"sine {pt.frequency_Hz:g} Hz ({pt.source})" for pt in objective.points]
+    return tuple(rows)
+
+
 def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings: list, curvature_fallback_Pa,
                   curvature_rel_ci_limit: float, t0: float) -> JointFitResult:
     """The result at the optimum ``sol``: parameters, linearised statistics, warnings."""
@@ -367,6 +384,7 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
         warnings.append(f"joint refinement: {', '.join(at_bound)} ended at the search bound")
     dof = max(res.size - len(values), 1)
     return JointFitResult(
+        jacobian=jac_phys, row_records=_row_records(objective),
         parameters=params, statistics=stats, names=objective.names,
         curvature_fitted="sigma_h''(1)_Pa" in objective.names,
         curvature_identified=identified,

@@ -35,6 +35,7 @@ from ..errors import IdentificationError
 from ..model.parameters import MembraneParameters
 from ..solvers.transient import TransientCollocation
 from .classification import classify_records, record_kinds
+from .determination import determine_parameters
 from .dynamic_fit import DynamicFitResult, fit_dynamic, select_fit_frequencies
 from .evaluation import Evaluation, evaluate
 from .experiments import ExperimentSet, data_warnings
@@ -111,6 +112,7 @@ class _Run:
     direction: np.ndarray | None = None                    # sigma_h''(1) in stage 1 (fit_curvature True)
     curvature_identified: bool | None = None
     curvature_status: str = "not fitted"
+    curvature_sensitivity: Any = None                      # CurvatureSensitivity (not identified)
 
 
 # --------------------------------------------------------------------------- stages
@@ -238,6 +240,7 @@ def _refinement_stage(run: _Run) -> None:
             decision = decide_curvature(rounds, static, exp, opt.n_harmonics, run.stress_terms, run.progress)
             run.joint, run.params = decision.joint, decision.parameters
             run.curvature_identified, run.curvature_status = decision.identified, decision.status
+            run.curvature_sensitivity = decision.sensitivity
             run.warnings += decision.warnings
     elif exp.sines:
         if opt.refine == "joint":
@@ -310,6 +313,15 @@ def _options_used(run: _Run) -> dict:
             "refine": opt.refine if joint is not None else "none", "uncertainty_samples": int(opt.uncertainty_samples)}
 
 
+def _determination(run: _Run) -> list:
+    """Per parameter: status, interval and the records that determine it (the joint fit's Jacobian)."""
+    if run.joint is not None:
+        return determine_parameters(run.joint.statistics, run.joint.jacobian, run.joint.row_records)
+    stats = run.dynamic.statistics if run.dynamic is not None else (
+        run.static.statistics if run.static is not None else None)
+    return determine_parameters(stats)
+
+
 # --------------------------------------------------------------------------- identification
 def identify(experiments: ExperimentSet, options: IdentificationOptions | None = None, *,
              progress: Callable[[dict], None] | None = None, engine=None, **option_values) -> IdentificationResult:
@@ -342,4 +354,5 @@ def identify(experiments: ExperimentSet, options: IdentificationOptions | None =
                                 _options_used(run), joint=run.joint, classification=run.classification,
                                 curvature_identified=run.curvature_identified,
                                 curvature_written_Pa=curvature_written, curvature_status=run.curvature_status,
-                                uncertainty=bands)
+                                uncertainty=bands, determination=_determination(run),
+                                curvature_sensitivity=run.curvature_sensitivity)

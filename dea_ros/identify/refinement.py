@@ -6,25 +6,29 @@ repeats (at most three rounds) until the classification does not change.
 
 :func:`decide_curvature` then says what is written for sigma_h''(1) (eq. 10): its 95 % interval
 within +-50 % of its value: "identified"; below +-100 % (sign known): "poorly determined",
-written as fitted with a warning; otherwise "not identified": the curvature terms are held at the
-base value (both sigma_h''(1) and sigma_h'''(1), or sigma_h''(1) alone when the data reject that by
-a chi-square above 9) and the intervals keep the widths of the free fit (the marginal uncertainty).
+written as fitted with a warning; otherwise "not identified". The reported parameters and
+intervals are then still those of the fit in which sigma_h''(1) and sigma_h'''(1) are free: a value
+the data do not determine never steers the others (issue 21: holding it at a guess moved eta1,
+eta2, eps_r on a softening membrane by several of their interval widths), and the free fit's
+linearised intervals allow for it. params.yaml carries the free fit's curvature as a representative
+value, flagged "not identified", and :func:`~dea_ros.identify.curvature_sensitivity.curvature_sensitivity`
+says how the predictions (resonance peak, step) change with it at both ends of its interval.
 """
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import dataclass, field
-from dataclasses import replace as dc_replace
 
 import numpy as np
 from scipy import stats as scipy_stats
 
 from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points
+from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
 from .experiments import ExperimentSet
 from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
-from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, StaticFitResult
+from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
 __all__ = ["JointRounds", "CurvatureDecision", "refine_jointly", "decide_curvature", "static_sigma",
            "curvature_fallback"]
@@ -51,6 +55,8 @@ class CurvatureDecision:
     joint: JointFitResult               # the fit whose parameters and intervals are reported
     parameters: MembraneParameters
     warnings: list = field(default_factory=list)
+    #: not identified: the predictions with sigma_h''(1) at the ends of its interval
+    sensitivity: CurvatureSensitivity | None = None
 
 
 def static_sigma(static: StaticFitResult | None) -> float:
@@ -120,83 +126,24 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
     return rounds
 
 
-def _marginal_statistics(held, free):
-    """Statistics of a fit with the curvature held, with every interval at least as wide as in the fit
-    with it free (the marginal uncertainty, which allows for the unknown curvature), around the held
-    fit's values."""
-    lo, hi = np.array(held.ci_low, float), np.array(held.ci_high, float)
-    se, rel = np.array(held.std_error, float), np.array(held.relative_ci, float)
-    vals = np.asarray(held.values, float)
-    for i, name in enumerate(held.names):
-        if name not in free.names:
-            continue
-        j = free.names.index(name)
-        if not (free.relative_ci[j] > rel[i]):
-            continue
-        rel[i] = free.relative_ci[j]
-        se[i] = max(se[i], free.std_error[j] * abs(vals[i] / free.values[j]) if free.values[j] else free.std_error[j])
-        if free.ci_low[j] > 0 and abs(np.log(free.ci_high[j] / free.values[j])
-                                      + np.log(free.ci_low[j] / free.values[j])) < 1e-9:
-            f_hi = free.ci_high[j] / free.values[j]           # a log parameter: multiplicative interval
-            lo[i], hi[i] = vals[i] / f_hi, vals[i] * f_hi
-        else:
-            half = 0.5 * (free.ci_high[j] - free.ci_low[j])
-            lo[i], hi[i] = vals[i] - half, vals[i] + half
-    return dc_replace(held, ci_low=lo, ci_high=hi, std_error=se, relative_ci=rel)
-
-
-def _set_combinations(params: MembraneParameters, combos, prior_bg) -> MembraneParameters:
-    """``params`` with (beta, gamma) matching the four combinations ``combos`` (eq. 10, in s)."""
-    prior = np.r_[params.beta_Pa, params.gamma_Pa] if prior_bg is None else np.asarray(prior_bg, float)
-    rep = OgdenRepresentation(params.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
-    bg = rep.beta_gamma(np.asarray(combos, float))
-    return params.replace(beta_Pa=tuple(float(v) for v in bg[:3]), gamma_Pa=tuple(float(v) for v in bg[3:]))
-
-
-def _with_base_curvature(params: MembraneParameters, base_bg) -> MembraneParameters:
-    """``params`` with sigma_h(1), sigma_h'(1) kept and the curvature terms of ``base_bg``."""
-    c = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
-    base = EXTENDED_COMBINATION_MATRIX @ np.asarray(base_bg, float)
-    rep = OgdenRepresentation(params.prestretch, 4, np.asarray(base_bg, float), matrix=EXTENDED_COMBINATION_MATRIX)
-    bg = rep.beta_gamma([c[0], c[1], base[2], base[3]])
-    return params.replace(beta_Pa=tuple(float(v) for v in bg[:3]), gamma_Pa=tuple(float(v) for v in bg[3:]))
-
-
-def _hold_curvature(joint: JointFitResult, params: MembraneParameters, static: StaticFitResult,
-                    rounds: JointRounds, experiments: ExperimentSet, rel: float, n_harmonics: int,
-                    stress_terms: int, progress) -> CurvatureDecision:
-    """sigma_h''(1) not identified: held at the base value; sigma_h'''(1) (with which it trades off at
-    these amplitudes) stays free when the data reject it at base, so the data keep their fit and the
-    other parameters their values; the reported values and intervals are those of this fit."""
-    fallback, classification = rounds.fallback_beta_gamma, rounds.classification
-    base_c2 = float(EXTENDED_COMBINATION_MATRIX[2] @ fallback)
-    c_free = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
-    start = _set_combinations(params, [c_free[0], c_free[1], base_c2, c_free[3]], static.prior_beta_gamma)
-    chi_free = joint.cost
-    pts_now = fitted_points(classification, experiments)
-    # first both curvature terms at the base values: when the data accept them (chi-square
-    # within 9 of the free fit) that is the written law
-    held = _joint_fit(_with_base_curvature(params, fallback), static, experiments, pts_now, False, stress_terms,
-                      base_c2, n_harmonics, progress)
-    how = "both curvature terms at the base values"
-    if held.cost - chi_free > 9.0:
-        held = _joint_fit(start, static, experiments, pts_now, "third", stress_terms, base_c2, n_harmonics, progress)
-        how = "sigma_h''(1) at the base value, sigma_h'''(1) refitted (the data reject both at base)"
-    held.statistics = _marginal_statistics(held.statistics, joint.statistics)
-    refit_note = (f" Written with {how}: chi-square {held.cost - chi_free:+.3g} against the free "
-                  "fit; the 95 % intervals keep the widths of the free fit (they allow for the "
-                  "unknown curvature).")
-    held.warnings = joint.warnings + [w for w in held.warnings if w not in joint.warnings]
+def _keep_free(joint: JointFitResult, params: MembraneParameters, rounds: JointRounds, experiments: ExperimentSet,
+               rel: float, n_harmonics: int) -> CurvatureDecision:
+    """sigma_h''(1) not identified: the free fit is reported (parameters and intervals), its curvature
+    written as a representative value, and how the predictions depend on it."""
+    classification = rounds.classification
     near = [c for c in classification if c["used"] != "left out"
             and c["measured_rms_m"] > 0.5 * max(x["measured_rms_m"] for x in classification)]
     hint = "" if len(near) >= 3 else " Records near the resonance peak (large amplitude) would determine it."
+    written = float(EXTENDED_COMBINATION_MATRIX[2] @ np.r_[params.beta_Pa, params.gamma_Pa])
+    sens = curvature_sensitivity(params, joint.statistics, experiments, n_harmonics)
     warning = (
         "sigma_h''(1) (curvature of the hyperelastic stress, eq. 10) is not identified by these "
-        f"data (95 % interval +-{100 * rel:.0f} % of the fitted value: sign unknown): params.yaml "
-        f"carries the base value {EXTENDED_COMBINATION_MATRIX[2] @ fallback / 1e3:.6g} kPa "
-        "(derivative in s = lambda^2) and says 'not identified'; the other parameters' intervals "
-        "allow for its uncertainty." + refit_note + hint)
-    return CurvatureDecision(False, "not identified", held, held.parameters, [warning])
+        f"data (95 % interval +-{100 * rel:.0f} % of the fitted value: sign unknown). The parameters and "
+        "intervals reported are those of the fit with it free (it does not steer them); params.yaml "
+        f"carries that fit's value {written / 1e3:.6g} kPa (derivative in s = lambda^2) as a "
+        "representative and says 'not identified'; the report shows the resonance peak and the step "
+        "with the curvature at both ends of its interval." + hint)
+    return CurvatureDecision(False, "not identified", joint, params, [warning], sens)
 
 
 def decide_curvature(rounds: JointRounds, static: StaticFitResult, experiments: ExperimentSet, n_harmonics: int,
@@ -215,4 +162,4 @@ def decide_curvature(rounds: JointRounds, static: StaticFitResult, experiments: 
             f"(95 % interval +-{100 * rel:.0f} % of its "
             "value, sign known): written as fitted, flagged in params.yaml; records near the "
             "resonance peak (large amplitude) would pin it down"])
-    return _hold_curvature(joint, params, static, rounds, experiments, rel, n_harmonics, stress_terms, progress)
+    return _keep_free(joint, params, rounds, experiments, rel, n_harmonics)

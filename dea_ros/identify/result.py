@@ -44,6 +44,12 @@ class IdentificationResult:
     #: confidence bands of the frequency response (:class:`~dea_ros.identify.uncertainty.ResponseBand`),
     #: one per sine data set and amplitude, when asked for (``uncertainty_samples``)
     uncertainty: list = field(default_factory=list)
+    #: per parameter of the final fit: status, 95 % interval, the records that determine it
+    #: (:class:`~dea_ros.identify.determination.ParameterDetermination`)
+    determination: list = field(default_factory=list)
+    #: sigma_h''(1) not identified: the predictions with it at both ends of its interval
+    #: (:class:`~dea_ros.identify.curvature_sensitivity.CurvatureSensitivity`)
+    curvature_sensitivity: object = None
 
     @property
     def statistics(self):
@@ -83,9 +89,20 @@ class IdentificationResult:
         else:
             meta["d2sigma_h_dlambda2(1)_Pa"] = "not identified"
             meta["d2sigma_h_dlambda2(1)_written_Pa"] = float(2.0 * c[1] + 4.0 * c[2])
-            meta["d2sigma_h_dlambda2(1)_note"] = (
-                "not determined by the data: beta/gamma carry the base value (base parameters file, or the "
-                "representation of eqs. 8-9 without one), not a fitted one")
+            if stats is not None and "sigma_h''(1)_Pa" in stats.names:
+                meta["d2sigma_h_dlambda2(1)_Pa_ci95"] = ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0})
+                meta["d2sigma_h_dlambda2(1)_note"] = (
+                    "not determined by the data: beta/gamma carry the value of the fit in which it is free, a "
+                    "representative only; it does not steer the other parameters (their values and intervals "
+                    "come from that fit); report.md shows the predictions at both ends of its interval")
+            else:
+                meta["d2sigma_h_dlambda2(1)_note"] = (
+                    "not fitted: beta/gamma carry the static fit's representation (base parameters file, or "
+                    "eqs. 8-9 without one), not a value determined by the data")
+        if self.determination:
+            meta["parameters"] = {d.name: {"status": d.status, "ci95": [d.ci_low, d.ci_high],
+                                           "determined_by": [r for r, _w in d.determined_by]}
+                                  for d in self.determination}
         for name in ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s"):
             st = stats if (stats is not None and name in stats.names) else (
                 self.static.statistics if (self.static is not None and name == "eps_r") else None)
@@ -128,6 +145,10 @@ class IdentificationResult:
                                           for c in self.classification])
         if self.joint is not None:
             out["joint_fit"] = jsonable(self.joint.as_dict())
+        if self.determination:
+            out["determination"] = jsonable({d.name: d.to_dict() for d in self.determination})
+        if self.curvature_sensitivity is not None:
+            out["curvature_sensitivity"] = jsonable(self.curvature_sensitivity.to_dict())
         if self.uncertainty:
             out["uncertainty"] = jsonable([b.to_dict() for b in self.uncertainty])
         if self.dynamic is not None:

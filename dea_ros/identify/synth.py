@@ -148,12 +148,13 @@ def _clean_step(params: MembraneParameters, step_voltage_V: float, step_time_s: 
 
 @functools.lru_cache(maxsize=8)
 def _clean_sines(params: MembraneParameters, amplitude_V: float, frequencies_Hz: tuple, record_s: float,
-                 sample_rate_Hz: float) -> list:
-    """[(f, t, d, kind)] noise-free records of an upward sweep (module docstring; memoised)."""
+                 sample_rate_Hz: float, offsets_s: tuple) -> list:
+    """[(f, t, d, kind)] noise-free records of an upward sweep (module docstring; memoised); record k
+    starts ``offsets_s[k]`` after phase 0 of its sine."""
     freqs = np.asarray(frequencies_Hz, float)
     sweep = frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), freqs, n_harmonics=12)
     out = []
-    for f, resp in zip(freqs, sweep.responses):
+    for f, resp, offset in zip(freqs, sweep.responses, offsets_s):
         pts = [p for b in sweep.branches for p in b.points
                if abs(p.frequency_Hz - f) <= 1e-9 * f and (b.name == resp.branch or resp.branch == "integration")]
         seed_pt = None
@@ -163,7 +164,7 @@ def _clean_sines(params: MembraneParameters, amplitude_V: float, frequencies_Hz:
         period = 1.0 / f
         n_periods = max(1, math.ceil(record_s / period))
         n_samples = int(math.floor(n_periods * period * sample_rate_Hz + 1e-9))
-        ts = np.arange(n_samples) / sample_rate_Hz
+        ts = offset + np.arange(n_samples) / sample_rate_Hz
         d_true, kind = _record(params, amplitude_V, float(f), resp,
                                seed_pt.solution if seed_pt is not None else None, ts)
         out.append((float(f), ts, d_true, kind))
@@ -188,24 +189,31 @@ def synthesize_experiments(
     baseline_samples: int = 1000,
     progress: Callable[[dict], None] | None = None,
     waveform: str = "sine",
+    quantisation_m: float = 0.0,
+    random_start_phase: bool = False,
 ) -> ExperimentSet:
     """The experiment set (in memory) the rig would record for ``params`` with laser noise ``noise_m``.
 
     See the module docstring for the protocol. ``noise_m`` is the standard
-    deviation of the Gaussian laser noise on every displacement sample (m).
+    deviation of the Gaussian laser noise on every displacement sample (m); ``quantisation_m``
+    the laser's digital resolution (m; every sample, static points and rest positions included,
+    is rounded to it after the noise: ``sim.plant.LASER_QUANTISATION_M`` for the ILD1320-10; 0:
+    none). ``random_start_phase``: every sine record starts at a random phase of the excitation
+    (its time axis stays that of the sine, u = U sin(2 pi f t)); otherwise at phase 0.
     """
     if not (math.isfinite(noise_m) and noise_m >= 0.0):
         raise ValueError(f"noise_m: must be >= 0 (metres), got {noise_m}")
     if noise_m > 1e-4:
         raise ValueError(f"noise_m: {noise_m} m is larger than the deflections; metres expected (1 um -> 1e-6)")
     rng = np.random.default_rng(seed)
-    static = _static_points(params, noise_m, rng, static_masses_kg, static_voltages_V, static_samples)
+    laser = _Laser(float(noise_m), float(quantisation_m), rng)
+    static = _static_points(params, laser, static_masses_kg, static_voltages_V, static_samples)
     if progress:
         progress({"stage": "synth", "what": "static", "points": static.n_points})
     # ---- step (eq. 23)
     t, u_step, d_step = _clean_step(params, float(step_voltage_V), float(step_time_s), float(step_duration_s),
                                     float(sample_rate_Hz))
-    step = StepData(t, u_step, d_step + rng.normal(0.0, noise_m, t.size),
+    step = StepData(t, u_step, laser.read(d_step),
                     mass_kg=params.mass_kg, voltage_hold="zoh", source="synthetic step")
     if progress:
         progress({"stage": "synth", "what": "step", "samples": t.size})
@@ -218,10 +226,13 @@ def synthesize_experiments(
         series_set = {round(float(f), 9) for f in series_frequencies_Hz}
     if waveform not in WAVEFORMS:
         raise ValueError(f"waveform: one of {WAVEFORMS}, got {waveform!r}")
-    sines, kinds = _sines(params, noise_m, rng, freqs, float(sine_amplitude_V), series_set, float(sine_record_s),
+    offsets = tuple(rng.uniform(0.0, 1.0, freqs.size) / freqs) if random_start_phase else (0.0,) * freqs.size
+    sines, kinds = _sines(params, laser, freqs, offsets, float(sine_amplitude_V), series_set, float(sine_record_s),
                           float(sample_rate_Hz), baseline_samples, waveform, progress)
     notes = (f"synthetic data from dea_ros.identify.synth: membrane {params.name}, laser noise "
-             f"{noise_m:g} m, seed {seed}, waveform {waveform}; true parameters in truth.yaml (not read by identify)")
+             f"{noise_m:g} m, quantisation {quantisation_m:g} m, seed {seed}, waveform {waveform}"
+             + (", random start phases" if random_start_phase else "")
+             + "; true parameters in truth.yaml (not read by identify)")
     odd = [f"{f:g} Hz {k}" for f, k in zip(freqs, kinds) if k != "periodic"]
     if odd:
         notes += "; responses that are not periodic at T/2: " + ", ".join(odd)
@@ -237,7 +248,24 @@ def synthesize_experiments(
     )
 
 
-def _static_points(params: MembraneParameters, noise_m: float, rng, masses_kg, voltages_V,
+class _Laser:
+    """What the laser reads: Gaussian noise, then the digital resolution (m)."""
+
+    def __init__(self, noise_m: float, quantisation_m: float, rng):
+        self.noise_m, self.quantisation_m, self.rng = noise_m, quantisation_m, rng
+
+    def read(self, d_m) -> np.ndarray:
+        d = np.asarray(d_m, float) + self.rng.normal(0.0, self.noise_m, np.shape(d_m))
+        return np.round(d / self.quantisation_m) * self.quantisation_m if self.quantisation_m > 0 else d
+
+    def mean_of(self, d_m: float, samples: int) -> float:
+        """The mean of ``samples`` readings of the constant ``d_m``."""
+        if self.quantisation_m > 0:
+            return float(np.mean(self.read(np.full(samples, d_m))))
+        return float(d_m + self.rng.normal(0.0, self.noise_m / math.sqrt(samples)))
+
+
+def _static_points(params: MembraneParameters, laser: _Laser, masses_kg, voltages_V,
                    samples: int) -> StaticData:
     """Static points (eq. 20): every mass at 0 V, every voltage at the dynamic mass; means of ``samples``."""
     masses, volts, disp = [], [], []
@@ -250,21 +278,23 @@ def _static_points(params: MembraneParameters, noise_m: float, rng, masses_kg, v
         masses.append(float(params.mass_kg))
         volts.append(float(u))
         disp.append(float(d))
-    disp = np.asarray(disp) + rng.normal(0.0, noise_m / math.sqrt(samples), len(disp))
+    disp = np.array([laser.mean_of(d, samples) for d in disp])
     return StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static")
 
 
-def _sines(params: MembraneParameters, noise_m: float, rng, freqs: np.ndarray, amplitude_V: float, series_set: set,
-           record_s: float, sample_rate_Hz: float, baseline_samples: int, waveform: str, progress) -> tuple:
+def _sines(params: MembraneParameters, laser: _Laser, freqs: np.ndarray, offsets: tuple, amplitude_V: float,
+           series_set: set, record_s: float, sample_rate_Hz: float, baseline_samples: int, waveform: str,
+           progress) -> tuple:
     """([SineData] of an upward sweep on the rig (eqs. 21, 24), the response kind per frequency)."""
     d_rest = float(static_equilibrium(params, 0.0).displacement_m)
     rms, d0s, stds, series, kinds = [], [], [], [], []
+    noise_m = laser.noise_m
     clean = _clean_sines(params, amplitude_V, tuple(float(f) for f in freqs), record_s,
-                         sample_rate_Hz) if freqs.size else []
+                         sample_rate_Hz, offsets) if freqs.size else []
     d0_std = noise_m / math.sqrt(baseline_samples)
     for f, ts, d_true, kind in clean:
-        d_noisy = d_true + rng.normal(0.0, noise_m, ts.size)
-        d0 = d_rest + float(np.mean(rng.normal(0.0, noise_m, baseline_samples)))
+        d_noisy = laser.read(d_true)
+        d0 = float(np.mean(laser.read(np.full(baseline_samples, d_rest))))   # the mean of the baseline samples
         u = amplitude_V * np.sin(2 * np.pi * f * ts)
         if waveform == "abs_sine":
             u = np.abs(u)

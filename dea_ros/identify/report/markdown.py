@@ -22,7 +22,8 @@ from ..result import IdentificationResult
 from ..static_fit import stress_combinations
 
 __all__ = ["report_markdown", "header", "warnings_section", "parameters_section", "classification_section",
-           "quality_section", "uncertainty_section", "fits_section", "timings_section", "figures_section",
+           "quality_section", "uncertainty_section", "determination_section",
+           "curvature_sensitivity_section", "fits_section", "timings_section", "figures_section",
            "applied_input_text", "WAVEFORM_TEXT"]
 
 WAVEFORM_TEXT = {"sine": "u = U sin(2 pi f t)", "abs_sine": "u = |U sin(2 pi f t)| (unipolar amplifier)"}
@@ -152,8 +153,12 @@ def _stress_rows(result: IdentificationResult) -> list:
                    f"{_fmt(curvature * 1e-3)}{flag} | "
                    "kPa | " + " | ".join(_ci_cells(c2, 1e-3)) + " |")
     else:
-        out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | **not identified** (base value "
-                   f"{_fmt(curvature * 1e-3)} written) | kPa | - | - |")
+        c2 = linear_combination_ci(stats, {"sigma_h'(1)_Pa": 2.0, "sigma_h''(1)_Pa": 4.0}) if (
+            stats is not None and "sigma_h''(1)_Pa" in stats.names) else None
+        what = "free fit's value" if c2 is not None else "static fit's representation"
+        out.append(f"| Hyperelastic stress curvature | d2 sigma_h / d lambda_r2 at 1 | **not identified** ({what} "
+                   f"{_fmt(curvature * 1e-3)} written as a representative) | kPa | "
+                   + " | ".join(_ci_cells(c2, 1e-3)) + " |")
     return out
 
 
@@ -165,7 +170,7 @@ def _stress_notes(result: IdentificationResult) -> list:
            "gamma_i lambda_r^-2i). The fits work in s = lambda_r^2 (eq. 20's s(d)): d sigma_h/d lambda_r = "
            "2 d sigma_h/ds and d2 sigma_h/d lambda_r2 = 2 d sigma_h/ds + 4 d2 sigma_h/ds2 at lambda_r = 1; "
            f"here d sigma_h/ds = {_fmt(combos[1] * 1e-3)} kPa, d2 sigma_h/ds2 = {_fmt(combos[2] * 1e-3)} kPa"
-           + ("" if result.curvature_identified else " (not identified: the base value)") + ".", ""]
+           + ("" if result.curvature_identified else " (not identified: a representative value)") + ".", ""]
     if st is not None:
         og = st.ogden_statistics
         sv = og.singular_values / og.singular_values[0]
@@ -207,6 +212,68 @@ def parameters_section(result: IdentificationResult) -> list:
         out.append(f"| Ogden coefficient | gamma_{i + 1} | {_fmt(p.gamma_Pa[i] * 1e-3)} | kPa | see note | |")
     out.append("")
     return out + _stress_notes(result)
+
+
+_LABELS = {"sigma_h(1)_Pa": ("sigma_h(1)", "kPa", 1e-3), "sigma_h'(1)_Pa": ("d sigma_h/ds (1)", "kPa", 1e-3),
+           "sigma_h''(1)_Pa": ("d2 sigma_h/ds2 (1)", "kPa", 1e-3),
+           "sigma_h'''(1)_Pa": ("d3 sigma_h/ds3 (1) (nuisance)", "kPa", 1e-3), "eps_r": ("eps_r", "-", 1.0),
+           "k1_Pa": ("k1", "MPa", 1e-6), "eta1_Pa_s": ("eta1", "MPa s", 1e-6), "eta2_Pa_s": ("eta2", "kPa s", 1e-3)}
+
+
+def _widening_text(records: list) -> str:
+    return ", ".join(f"{r} ({'essential' if not math.isfinite(w) else f'+{100 * w:.0f} %'})" for r, w in records)
+
+
+def determination_section(result: IdentificationResult) -> list:
+    """Per parameter: identified / poorly determined / not identified, the interval, the records that
+    determine it (how much wider its interval would be without each)."""
+    if not result.determination:
+        return []
+    out = ["## What the data determine", "",
+           "Status from the 95 % interval's half-width relative to the value: identified (<= 50 %), poorly "
+           "determined (< 100 %, sign known), not identified. 'Determined by': the records without which the "
+           "interval would be wider by more than 5 % (with how much wider; 'essential': not determined at all "
+           "without it), from the Fisher information of the fit; when no record alone matters that much the "
+           "three that matter most are named.", "",
+           "| Parameter | Status | Value | 95 % CI | Unit | Determined by |", "|---|---|---|---|---|---|"]
+    for d in result.determination:
+        label, unit, scale = _LABELS.get(d.name, (d.name, "SI", 1.0))
+        ci = (f"[{_fmt(d.ci_low * scale)}, {_fmt(d.ci_high * scale)}]" if math.isfinite(d.relative_ci)
+              else "not identifiable")
+        who = _widening_text(d.determined_by) if d.determined_by else "-"
+        if d.spread:
+            who = "spread over many records; most: " + who
+        status = f"**{d.status}**" if d.status != "identified" else d.status
+        out.append(f"| {label} | {status} | {_fmt(d.value * scale)} | {ci} | {unit} | {who} |")
+    out.append("")
+    return out
+
+
+def curvature_sensitivity_section(result: IdentificationResult) -> list:
+    """sigma_h''(1) not identified: the predictions with the value written and at both ends of its interval."""
+    sens = result.curvature_sensitivity
+    if sens is None:
+        return []
+    out = ["## sigma_h''(1) not identified: how the predictions depend on the value written", "",
+           "The parameters and intervals above come from the fit in which sigma_h''(1) (and sigma_h'''(1)) are "
+           "free, so the value written does not steer them. params.yaml must carry one value for the model to "
+           "run: that fit's. With every other parameter as written, the model predicts:", "",
+           "| sigma_h''(1) (d2 sigma_h/ds2) | value (kPa) | resonance peak (Hz) | peak d_rms (um) | "
+           "step: max difference from the written model (um) |", "|---|---|---|---|---|"]
+    for end, label in (("low", "low end of the 95 % interval"), ("written", "written (representative)"),
+                       ("high", "high end of the 95 % interval")):
+        f = sens.peak_frequency_Hz.get(end)
+        a = sens.peak_d_rms_m.get(end)
+        s = sens.step_max_difference_m.get(end)
+        out.append(f"| {label} | {_fmt(sens.curvature_Pa[end] * 1e-3)} | {_fmt(f, 6)} | "
+                   f"{_fmt(None if a is None else a * 1e6)} | {_fmt(None if s is None else s * 1e6, 3)} |")
+    if sens.amplitude_V is not None:
+        out.append("")
+        out.append(f"Peaks at {_fmt(sens.amplitude_V)} V (the amplitude of the largest sine record), located on the "
+                   "T/2 branch.")
+    out += [f"Note: {n}" for n in sens.notes]
+    out.append("")
+    return out
 
 
 def classification_section(result: IdentificationResult) -> list:
@@ -412,7 +479,8 @@ def figures_section(figures: dict) -> list:
 
 def report_markdown(result: IdentificationResult, figures: dict, timings_extra: dict | None = None) -> str:
     """The text of ``report.md``."""
-    out = (header(result) + warnings_section(result) + parameters_section(result) + classification_section(result)
+    out = (header(result) + warnings_section(result) + parameters_section(result) + determination_section(result)
+           + curvature_sensitivity_section(result) + classification_section(result)
            + quality_section(result) + uncertainty_section(result.uncertainty) + fits_section(result)
            + timings_section(result, timings_extra) + figures_section(figures))
     return "\n".join(out)

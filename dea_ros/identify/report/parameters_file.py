@@ -14,8 +14,9 @@ __all__ = ["write_parameters"]
 def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
     """Fitted parameters as YAML: the MembraneParameters fields under ``membrane:`` (loadable by
     :meth:`MembraneParameters.from_yaml` and every node and command), what was identified and how
-    under ``identification:`` (sigma_h''(1) "not identified" when the data do not determine it:
-    beta/gamma then carry the base value), and a header naming the data and the methods."""
+    under ``identification:`` (per parameter: status, 95 % interval and the records that determine it;
+    sigma_h''(1) "not identified" when the data do not determine it: beta/gamma then carry the free
+    fit's value as a representative), and a header naming the data and the methods."""
     path = Path(path)
     exp = result.experiments
     lines = [
@@ -30,8 +31,8 @@ def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
         lines.append("identified: sigma_h(1), its slope and eps_r (and the curvature where the 'identification' "
                      "section says so); beta/gamma are one representative, not individually identifiable")
     if result.curvature_identified is False:
-        lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry the base value "
-                     "(see 'identification')")
+        lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry a representative value that "
+                     "does not steer the other parameters (see 'identification' and report.md)")
     text = "\n".join(f"# {line}" for line in lines) + "\n"
     data = {"membrane": result.parameters.to_dict(), "identification": _plain(result.identification_metadata())}
     text += yaml.safe_dump(data, sort_keys=False)
