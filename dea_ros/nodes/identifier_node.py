@@ -116,6 +116,8 @@ class IdentifierNode(Node):
             return
         self._create_ticks()
         self.create_timer(0.5, self.publish_status)
+        if self.progress_period_s > 0:  # wall clock: a line a person (or dea-ros rig demo) can follow
+            self.create_timer(self.progress_period_s, self.log_progress, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
             f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
@@ -145,6 +147,9 @@ class IdentifierNode(Node):
         self.bag_format = declare_str(self, "rosbag2_format", "auto",
                                       "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
                                       "or jazzy (Jazzy and newer)")
+        self.progress_period_s = declare_float(
+            self, "progress_period_s", 0.0, "log a 'progress {json}' line (the ~/status fields, the segment's kind "
+            "and frequency) this often, wall-clock s (0: never)", 0.0, 3600.0)
         self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
         return run_name
 
@@ -523,14 +528,25 @@ class IdentifierNode(Node):
         self.done()
         return True
 
-    def publish_status(self) -> None:
+    def status(self) -> dict:
+        """The run's state: segment, simulated time since the protocol started (s), its duration (s)."""
         total = self.segments[-1].end_s if self.segments else 0.0
         elapsed = (self.now_ns() - self.t0_ns) * 1e-9 if (self.t0_ns and self.state == "running") else None
-        status = {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
-                  "elapsed_s": elapsed, "duration_s": total,
-                  "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
-                  "bag": str(self.bag_dir), "error": self.error}
-        self.status_pub.publish(String(data=json.dumps(status)))
+        return {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
+                "elapsed_s": elapsed, "duration_s": total,
+                "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
+                "bag": str(self.bag_dir), "error": self.error}
+
+    def publish_status(self) -> None:
+        self.status_pub.publish(String(data=json.dumps(self.status())))
+
+    def log_progress(self) -> None:
+        """``progress_period_s``: the status and the current segment's kind and numbers as one log line."""
+        status = self.status()
+        if 0 <= self.segment_index < len(self.segments):
+            seg = self.segments[self.segment_index]
+            status.update(kind=seg.kind, **{k: v for k, v in seg.info.items() if isinstance(v, (int, float))})
+        self.get_logger().info("progress " + json.dumps(status))
 
     def shutdown_safely(self) -> None:
         """SIGINT/SIGTERM: like the abort service (0 V, bag closed with everything so far)."""
