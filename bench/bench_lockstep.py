@@ -60,7 +60,7 @@ def run_once(args, run_dir: Path) -> dict:
     load0 = os.getloadavg()
     try:
         start_rig(rig, "A2", sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
-                  update_rate_hz=args.rate, true_params=truth)  # the demo's rig (pause_when_idle)
+                  update_rate_hz=args.rate, true_params=truth, model=args.model_node)  # the demo's rig
         ident = rig.start("identifier_node", {
             "use_sim_time": True, "protocol": args.protocol, "output_dir": str(run_dir), "run_name": "run",
             "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
@@ -98,6 +98,7 @@ def main() -> None:
     ap.add_argument("--laser-rate", type=float, default=500.0)
     ap.add_argument("--idle-s", type=float, default=10.0)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--model-node", action="store_true", help="with model_node (the demo's --model-node)")
     args = ap.parse_args()
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     print(f"machine: {machine()}")

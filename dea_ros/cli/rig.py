@@ -101,7 +101,9 @@ class RigProcesses:
 
 
 def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
-              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6) -> None:
+              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6,
+              model: bool = True) -> None:
+    """The rig's processes: mock, amplifier, model_node (``model``) and, in real time, laser_sensor_node."""
     port = _free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
@@ -121,7 +123,8 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
                                  "autostart": True, "update_rate_hz": update_rate_hz,
                                  "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
                                  "watchdog_timeout_s": 0.5})
-    rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
+    if model:
+        rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
     if not sim_time:
         rig.start("laser_sensor_node", {"port": f"/tmp/dea_ros_mock_laser_{os.getpid()}", "zero_offset_m": 0.002,
                                         "measuring_rate_hz": 2000.0})
@@ -178,7 +181,7 @@ def _run_protocol(args, rig: RigProcesses, out: Path, run_name: str, line) -> in
     """Start the rig and identifier_node (recording only) and wait until the bag is closed. Returns the
     identifier's exit code, or None when a rig process died (reported)."""
     start_rig(rig, args.membrane, sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
-              update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise)
+              update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise, model=args.model_node)
     ident = rig.start("identifier_node", {
         "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
         "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
@@ -334,6 +337,9 @@ def register(subparsers) -> None:
                            "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
                            "`dea-ros bag convert` changes it later")
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
+    demo.add_argument("--model-node", action="store_true",
+                      help="run model_node too and record its displacement_predicted (not used by the "
+                           "identification; ~20 %% of the lockstep's CPU)")
     demo.add_argument("--quiet", action="store_true", help="no progress line: only the result (and errors)")
     demo.add_argument("--keep-rig", action="store_true",
                       help="keep the rig's nodes up during the identification (default: 0 V, rig shut down, "

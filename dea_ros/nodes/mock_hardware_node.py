@@ -95,7 +95,6 @@ class MockHardwareNode(Node):
         self.samples_out = True                  # the laser samples of the current tick are published
         self.lockstep_timeouts = 0
         self.ack_times: dict = {}
-        self.clock_wall_s = 0.0                  # wall time of the last /clock message
         self.paused = False                      # pause_when_idle: no participant active, the clock stands
         self.wake = threading.Event()            # the executor drained the UDP socket (the waiter may wait again)
         if self.publish_clock and self.lockstep:
@@ -200,7 +199,9 @@ class MockHardwareNode(Node):
             period = 1.0 / (self.clock_rate_hz * self.real_time_factor)
             self.timer = self.create_timer(period, self.on_sim_tick, clock=_wall_clock())
             self.timer.cancel()
-            self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick, clock=_wall_clock())
+            self.watch_timer = self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick,
+                                                 clock=_wall_clock())
+            self.create_timer(0.5, self.republish_while_waiting, clock=_wall_clock())
             self.udp_ready = self.create_guard_condition(self.on_sim_tick)
             self.waiter = threading.Thread(target=self._wait_for_amplifier, daemon=True)
             self.waiter.start()
@@ -277,14 +278,22 @@ class MockHardwareNode(Node):
         """``pause_when_idle``: True (the clock stands) while no participant acknowledged within the timeout."""
         now = time.monotonic()
         idle = not any(now - wall_s < self.lockstep_timeout_s for _stamp, wall_s in self.ack_times.values())
-        if idle and now - self.clock_wall_s > 0.5:
-            self.publish_clock_time()  # the same time again, for nodes started after the clock paused
         if idle != self.paused:
             self.paused = idle
+            if idle:
+                self.watch_timer.cancel()  # nothing to time out: an acknowledgement resumes the clock
+            else:
+                self.watch_timer.reset()
             self.wall_t0 = now - self.tick_index / (self.clock_rate_hz * self.real_time_factor)  # no catch-up burst
             self.get_logger().info(f"simulated clock {'paused' if idle else 'resumed'} at t = "
                                    f"{self.clock_time_s - self.sim_t0:.3f} s (simulated)")
         return idle
+
+    def republish_while_waiting(self) -> None:
+        """Paused before any participant acknowledged (the rig starting): ``/clock`` again, same time, for
+        the nodes that started after it was published (a volatile topic)."""
+        if self.paused and not self.ack_times and self.clock_time_s is not None:
+            self.publish_clock_time()
 
     def on_ack(self, topic: str):
         def record(msg: Header) -> None:
@@ -352,7 +361,6 @@ class MockHardwareNode(Node):
         msg.clock.sec = int(sec)
         msg.clock.nanosec = min(int(round((self.clock_time_s - sec) * 1e9)), 999_999_999)
         self.clock_pub.publish(msg)
-        self.clock_wall_s = time.monotonic()
 
     def publish_diagnostics(self) -> None:
         lag = (time.monotonic() - self.wall_t0) * self.real_time_factor - (self.sim.t_s - self.sim_t0) \

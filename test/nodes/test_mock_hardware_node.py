@@ -178,5 +178,6 @@ def test_the_rig_costs_no_cpu_while_the_simulated_clock_is_paused(ros_context, s
         node.destroy_node()
     assert clock[-1] == t_paused, f"the clock advanced while paused ({clock[-1] - t_paused:.3f} s)"
     busy = {name: round(100 * (cpu1[name] - cpu0[name]) / 5.0, 1) for name in cpu0}
-    # a spinning node costs 20-50 % of a core here; a sleeping one a few 1/100 s (diagnostics once a second)
-    assert all(v < 2.0 for v in busy.values()), f"CPU while paused, % of a core: {busy}"
+    # a node spinning on the clock costs 20-50 % of a core here (issue 22); a sleeping one runs only its
+    # wall-clock timers (the amplifier's 10 Hz watchdog backstop, diagnostics at 1 Hz): ~1-2 % on this machine
+    assert all(v < 5.0 for v in busy.values()), f"CPU while paused, % of a core: {busy}"
