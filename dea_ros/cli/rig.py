@@ -3,10 +3,16 @@
 * ``dea-ros rig up``: mock_hardware_node, amplifier_node (autostarted), model_node and, in real
   time, laser_sensor_node reading the emulated ILD1320 over its pseudo-terminal; until Ctrl-C.
 * ``dea-ros rig demo``: the main job. The same rig in simulated time (the mock publishes
-  ``/clock`` at ``--speed`` times real time, every node runs with ``use_sim_time``), plus
-  identifier_node running a protocol: bag -> experiments -> identified parameters -> report.
-  ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
-  Ends by printing where the bag, the parameters and the plots are.
+  ``/clock`` at up to ``--speed`` times real time, every node runs with ``use_sim_time``; model_node
+  only with ``--model-node``), plus identifier_node recording a protocol into a bag. Once the bag is
+  closed the rig is shut down (0 V: the amplifier ramps down; ``--keep-rig`` keeps it up, its clock
+  paused) and this process identifies: bag -> experiments -> identified parameters -> report. On a
+  first run (no completed warm-up in the kernel cache, :mod:`dea_ros.identify.warmup`) the
+  identification's numba kernels compile in a background process while the protocol runs.
+  One live line follows the protocol (segment, simulated time, speed, ETA) and the identification
+  (stage, evaluations, elapsed); plain lines every 10 s when stdout is not a terminal; none with
+  ``--quiet``. ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
+  Ends by printing where the bag, the parameters and the plots are, and the time of each phase.
 
 Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
 as ``ros2 run`` would start it; Ctrl-C stops them in order (the amplifier ramps to 0 V first).
@@ -108,10 +114,12 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
     if sim_time:
-        # the clock waits for the identifier's tick and for its command to reach the amplifier
-        # (identifier_node command_trigger applied_voltage): every command applied one update later
+        # the clock waits for the identifier's command to reach the amplifier (identifier_node
+        # command_trigger applied_voltage: one command per amplifier update, so the amplifier's receipt
+        # implies the identifier's tick; its own tick_done would be one more message per tick): every
+        # command applied one update later
         mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
-                    lockstep_topics="[identifier_node/tick_done, amplifier_node/command_received]",
+                    lockstep_topics="[amplifier_node/command_received]",
                     pause_when_idle=True)
     else:
         link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"

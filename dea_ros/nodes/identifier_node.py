@@ -50,6 +50,7 @@ from std_srvs.srv import Trigger
 
 from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
                    resolve_rosbag2_format)
+from ..bag.message_codec import header_stamp_ns
 from ..identify.bag_experiments import EXPERIMENT_METADATA
 from ..identify.from_bag import identify_bag
 from ..identify.protocols import ProtocolError, load_protocol
@@ -64,7 +65,6 @@ from .common import (
     declare_bool,
     declare_float,
     declare_str,
-    stamp_to_ns,
 )
 from .runner import run_nodes
 
@@ -170,6 +170,7 @@ class IdentifierNode(Node):
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
         self.skipped_before_clock = 0
+        self.trigger_topic = None  # command_trigger applied_voltage: the recorded topic whose messages trigger
 
     def _load_protocol(self) -> None:
         """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
@@ -217,7 +218,8 @@ class IdentifierNode(Node):
         # applied at once or one update later: a jittered staircase). After the amplifier's output
         # for t_k is seen, the command is for its update at t_k + 1/rate, always; the mock rig's
         # lockstep (amplifier_node/command_received) lets the clock advance only once it arrived.
-        self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_applied_voltage, SENSOR_QOS)
+        # The recorder's subscription of the applied voltage is the trigger (one delivery per tick, not two).
+        self.trigger_topic = self.topic_names[TOPIC_VOLTAGE]
         self.create_timer(0.1, self.on_wait_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     # ------------------------------------------------------------------ recording
@@ -280,6 +282,9 @@ class IdentifierNode(Node):
                 bag.write_serialized(topic, data, now_ns)
             except BagError as exc:
                 self.recording_failed(exc)
+                return
+            if topic == self.trigger_topic:
+                self.on_applied_voltage(header_stamp_ns(data))
         return record
 
     def on_voltage_seen(self, msg: BatteryState) -> None:
@@ -337,9 +342,8 @@ class IdentifierNode(Node):
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def on_applied_voltage(self, msg: BatteryState) -> None:
-        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
-        stamp_ns = stamp_to_ns(msg.header.stamp)
+    def on_applied_voltage(self, stamp_ns: int) -> None:
+        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp, ns)."""
         if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
             self.last_trigger_ns = stamp_ns
             self.on_tick(stamp_ns)

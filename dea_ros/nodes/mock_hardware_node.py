@@ -42,6 +42,15 @@ because the sample went out after the amplifier's update for t_k): the amplifier
 update for t_{k+1}, so a sample-driven controller sees a fixed delay of exactly one tick from
 acquisition to applied voltage (position_controller_node's ``loop_delay_s`` at 1 kHz).
 
+The node sleeps between events: a thread blocks on the amplifier's UDP socket and wakes the executor
+(a guard condition) when a datagram arrives, acknowledgements arrive as messages, and the pacing timer
+runs only while the clock is ahead of ``real_time_factor``. With ``pause_when_idle`` (``dea-ros rig
+demo``) the clock stands once the lockstep participants that acknowledged fall silent for
+``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A paused rig costs no CPU:
+the nodes' timers on the simulated clock do not fire, nothing polls (issue 22). Before the first
+acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V when its
+clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
+
 The simulated amplifier has its own dead-man interlock: when no datagram arrived for
 ``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
 power), its output drops to 0 V by itself, as a real rig's interlock would.
@@ -151,9 +160,8 @@ class MockHardwareNode(Node):
                                                  "this long (wall clock), s", 0.01, 10.0)
         self.pause_when_idle = declare_bool(
             self, "pause_when_idle", False,
-            "simulated time with lockstep: the clock stands (and the node sleeps) while no lockstep participant "
-            "acknowledged within lockstep_timeout_s, e.g. before a protocol starts and after it ended; the first "
-            "tick is published at start-up")
+            "simulated time with lockstep: once a participant acknowledged, the clock stands (and the node "
+            "sleeps) while none acknowledged within lockstep_timeout_s, e.g. after a protocol ended")
         self.lockstep_topics = self.declare_parameter(
             "lockstep_topics", ["identifier_node/tick_done"],
             ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
@@ -201,7 +209,6 @@ class MockHardwareNode(Node):
             self.timer.cancel()
             self.watch_timer = self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick,
                                                  clock=_wall_clock())
-            self.create_timer(0.5, self.republish_while_waiting, clock=_wall_clock())
             self.udp_ready = self.create_guard_condition(self.on_sim_tick)
             self.waiter = threading.Thread(target=self._wait_for_amplifier, daemon=True)
             self.waiter.start()
@@ -275,7 +282,11 @@ class MockHardwareNode(Node):
         return None
 
     def _pause_if_idle(self) -> bool:
-        """``pause_when_idle``: True (the clock stands) while no participant acknowledged within the timeout."""
+        """``pause_when_idle``: True (the clock stands) while no participant acknowledged within the timeout,
+        once one has (before, the clock runs: the nodes starting need it, and amplifier_node ramps to 0 V
+        when its clock stalls for 2 s while it is active)."""
+        if not self.ack_times:
+            return False
         now = time.monotonic()
         idle = not any(now - wall_s < self.lockstep_timeout_s for _stamp, wall_s in self.ack_times.values())
         if idle != self.paused:
@@ -288,12 +299,6 @@ class MockHardwareNode(Node):
             self.get_logger().info(f"simulated clock {'paused' if idle else 'resumed'} at t = "
                                    f"{self.clock_time_s - self.sim_t0:.3f} s (simulated)")
         return idle
-
-    def republish_while_waiting(self) -> None:
-        """Paused before any participant acknowledged (the rig starting): ``/clock`` again, same time, for
-        the nodes that started after it was published (a volatile topic)."""
-        if self.paused and not self.ack_times and self.clock_time_s is not None:
-            self.publish_clock_time()
 
     def on_ack(self, topic: str):
         def record(msg: Header) -> None:
