@@ -217,7 +217,7 @@ def _identify(args, run_dir: Path, summary: dict, warmup, line) -> None:
         while warmup.poll() is None:
             line.update(f"identifying: waiting for the kernels' first compilation, {time.monotonic() - t0:.0f} s")
             time.sleep(0.5)
-    summary["timings_s"]["kernel_wait"] = time.monotonic() - t0
+    summary["phases_s"]["kernel_wait"] = time.monotonic() - t0
     if warmup is not None and warmup.returncode != 0:
         line.print(f"dea-ros rig demo: the kernel warm-up failed (see {run_dir / 'logs' / 'kernel_warmup.log'}); "
                    "the identification compiles them")
@@ -238,9 +238,9 @@ def _print_summary(summary: dict, wall: float, as_json: bool) -> None:
         print(json.dumps({**summary, "wall_time_s": wall}, indent=2, default=str))
         return
     print()
-    t = summary.get("timings_s", {})
-    print(f"done in {wall:.0f} s (wall clock: protocol {t.get('protocol', float('nan')):.0f} s, identification "
-          f"{t.get('identification', float('nan')):.0f} s); state: {summary.get('state')}")
+    phases = ", ".join(f"{name} {seconds:.0f} s" for name, seconds in summary.get("phases_s", {}).items()
+                       if name in ("protocol", "identification"))
+    print(f"done in {wall:.0f} s (wall clock: {phases}); state: {summary.get('state')}")
     if summary.get("error"):
         print(f"error: {summary['error']}")
     print(f"  bag:        {summary.get('bag')}")
@@ -298,11 +298,11 @@ def cmd_rig_demo(args) -> int:
                   file=sys.stderr)
             return 1
         summary = json.loads(summary_file.read_text())
-        summary["timings_s"] = {"protocol": t_protocol}
+        summary["phases_s"] = {"protocol": t_protocol}  # (timings_s: the identification's own)
         if summary.get("state") == "done" and not args.no_identify:
             t_ident = time.monotonic()
             _identify(args, run_dir, summary, warmup, line)
-            summary["timings_s"]["identification"] = time.monotonic() - t_ident
+            summary["phases_s"]["identification"] = time.monotonic() - t_ident
             summary_file.write_text(json.dumps(summary, indent=2, default=str))
     except KeyboardInterrupt:
         line.end()
