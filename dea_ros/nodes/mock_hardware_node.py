@@ -204,7 +204,7 @@ class MockHardwareNode(Node):
             # UDP socket and wakes the executor by a guard condition) and when an acknowledgement arrives;
             # the pacing timer runs only while the clock is ahead of real_time_factor x the wall clock, a
             # slow one catches the lockstep timeouts. A paused or waiting rig costs no CPU.
-            period = 1.0 / (self.clock_rate_hz * self.real_time_factor)
+            period = min(1.0 / (self.clock_rate_hz * self.real_time_factor), 0.0005)  # catches up when late
             self.timer = self.create_timer(period, self.on_sim_tick, clock=_wall_clock())
             self.timer.cancel()
             self.watch_timer = self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick,
@@ -358,6 +358,8 @@ class MockHardwareNode(Node):
         self.tick_wall_s = time.monotonic()
         self.publish_clock_time()
         self.release_samples()  # at once when the amplifier is not waited for
+        if not (self.lockstep and (self.amp_time_s is not None or self.ack_times)) and self.timer.is_canceled():
+            self.timer.reset()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
 
     def publish_clock_time(self) -> None:
         """Publish ``/clock`` = the current tick's time."""
