@@ -138,8 +138,8 @@ def process_cpu_s(pid: int) -> float:
 @pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads process CPU times from /proc")
 def test_the_rig_costs_no_cpu_while_the_simulated_clock_is_paused(ros_context, spin_until, tmp_path):
     """The demo's rig (mock with pause_when_idle, amplifier, model; each its own process): the clock runs
-    while a lockstep participant acknowledges its ticks (here the amplifier's command_received, as this
-    probe commands 0 V at every tick like the identifier), pauses when it falls silent (as after a
+    while a lockstep participant acknowledges its ticks (here the amplifier's command_received: this probe
+    commands 0 V after each of the amplifier's updates, as the identifier does), pauses when it falls silent (as after a
     protocol), and then no process's CPU time grows measurably: nothing polls, no timer on the paused
     clock spins."""
     from rosgraph_msgs.msg import Clock
@@ -154,12 +154,12 @@ def test_the_rig_costs_no_cpu_while_the_simulated_clock_is_paused(ros_context, s
     clock, commanding = [], [True]
     cmd = node.create_publisher(Float64, f"{ns}/voltage_cmd", COMMAND_QOS)
 
-    def on_clock(m):
-        clock.append(m.clock.sec + m.clock.nanosec * 1e-9)
+    def on_applied(_msg):
         if commanding[0]:
             cmd.publish(Float64(data=0.0))
 
-    node.create_subscription(Clock, "/clock", on_clock, 10)
+    node.create_subscription(Clock, "/clock", lambda m: clock.append(m.clock.sec + m.clock.nanosec * 1e-9), 10)
+    node.create_subscription(BatteryState, f"{ns}/voltage", on_applied, SENSOR_QOS)
     try:
         start_rig(rig, "A2", sim_time=True, speed=3.0, laser_rate_hz=500.0, update_rate_hz=250.0,
                   true_params=str(TRUTH), model=True)
