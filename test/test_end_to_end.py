@@ -27,7 +27,8 @@ def demo_run(tmp_path_factory):
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(60 + os.getpid() % 40)
     cmd = [sys.executable, "-m", "dea_ros.cli", "rig", "demo", "--protocol", "test",
-           "--out", str(out), "--run-name", "e2e", "--json", "--rosbag2-format", "humble"]
+           "--out", str(out), "--run-name", "e2e", "--json", "--rosbag2-format", "humble",
+           "--model-node"]  # model_node is opt-in (issue 22): its predicted stream is checked below too
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     summary = json.loads(proc.stdout[proc.stdout.index("{\n"):])

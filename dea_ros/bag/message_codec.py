@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import contextlib
 import io
+import struct
 from typing import Any, Callable
 
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
-__all__ = ["message_decoder", "message_encoder", "plain_message"]
+__all__ = ["header_stamp_ns", "message_decoder", "message_encoder", "plain_message"]
 
 
 def message_decoder(type_name: str, schema_data: bytes) -> Callable[[bytes], Any]:
@@ -53,3 +54,15 @@ def plain_message(message: Any) -> Any:
             ]
         plain[field_name] = value
     return plain
+
+
+def header_stamp_ns(data: bytes) -> int:
+    """The header stamp (integer ns) of a CDR-serialized message whose first field is a std_msgs/Header
+    (sensor_msgs/BatteryState, Range, ...): ``sec`` (int32) and ``nanosec`` (uint32) right after the
+    4-byte encapsulation header, little- or big-endian as it says. For a recorder that also needs the
+    stamp without deserializing the message a second time."""
+    if len(data) < 12:
+        raise ValueError(f"header_stamp_ns: {len(data)} bytes is no CDR message with a header")
+    order = "<" if data[1] & 1 else ">"  # encapsulation kind: CDR_LE = 0x0001, CDR_BE = 0x0000
+    sec, nanosec = struct.unpack_from(order + "iI", data, 4)
+    return sec * 1_000_000_000 + nanosec

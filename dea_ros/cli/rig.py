@@ -3,10 +3,16 @@
 * ``dea-ros rig up``: mock_hardware_node, amplifier_node (autostarted), model_node and, in real
   time, laser_sensor_node reading the emulated ILD1320 over its pseudo-terminal; until Ctrl-C.
 * ``dea-ros rig demo``: the main job. The same rig in simulated time (the mock publishes
-  ``/clock`` at ``--speed`` times real time, every node runs with ``use_sim_time``), plus
-  identifier_node running a protocol: bag -> experiments -> identified parameters -> report.
-  ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
-  Ends by printing where the bag, the parameters and the plots are.
+  ``/clock`` at up to ``--speed`` times real time, every node runs with ``use_sim_time``; model_node
+  only with ``--model-node``), plus identifier_node recording a protocol into a bag. Once the bag is
+  closed the rig is shut down (0 V: the amplifier ramps down; ``--keep-rig`` keeps it up, its clock
+  paused) and this process identifies: bag -> experiments -> identified parameters -> report. On a
+  first run (no completed warm-up in the kernel cache, :mod:`dea_ros.identify.warmup`) the
+  identification's numba kernels compile in a background process while the protocol runs.
+  One live line follows the protocol (segment, simulated time, speed, ETA) and the identification
+  (stage, evaluations, elapsed); plain lines every 10 s when stdout is not a terminal; none with
+  ``--quiet``. ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
+  Ends by printing where the bag, the parameters and the plots are, and the time of each phase.
 
 Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
 as ``ros2 run`` would start it; Ctrl-C stops them in order (the amplifier ramps to 0 V first).
@@ -24,6 +30,7 @@ import threading
 import time
 from pathlib import Path
 
+from .progress import ProgressLine, ProtocolProgress, identification_text, parse_progress
 from .rig_check import register as register_check
 
 __all__ = ["register", "RigProcesses"]
@@ -47,10 +54,11 @@ def _ros_args(params: dict) -> list[str]:
 class RigProcesses:
     """Start/stop node processes; their output is prefixed with the node name (or quiet)."""
 
-    def __init__(self, namespace: str = "/dea", quiet: bool = False, log_dir: Path | None = None):
+    def __init__(self, namespace: str = "/dea", quiet: bool = False, log_dir: Path | None = None, on_line=None):
         self.namespace = namespace
         self.quiet = quiet
         self.log_dir = log_dir
+        self.on_line = on_line  # on_line(node, line) -> True when it showed the line itself
         self.procs: dict[str, subprocess.Popen] = {}
         self.env = dict(os.environ)
         self.env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
@@ -69,6 +77,8 @@ class RigProcesses:
                 if log:
                     log.write(line)
                     log.flush()
+                if self.on_line is not None and self.on_line(node, line):
+                    continue
                 if not self.quiet or node == "identifier_node" or "ERROR" in line:
                     print(f"[{node}] {line.rstrip()}", flush=True)
             if log:
@@ -97,15 +107,20 @@ class RigProcesses:
 
 
 def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
-              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6) -> None:
+              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6,
+              model: bool = True) -> None:
+    """The rig's processes: mock, amplifier, model_node (``model``) and, in real time, laser_sensor_node."""
     port = _free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
     if sim_time:
-        # the clock waits for the identifier's tick and for its command to reach the amplifier
-        # (identifier_node command_trigger applied_voltage): every command applied one update later
+        # the clock waits for the identifier's command to reach the amplifier (identifier_node
+        # command_trigger applied_voltage: one command per amplifier update, so the amplifier's receipt
+        # implies the identifier's tick; its own tick_done would be one more message per tick): every
+        # command applied one update later
         mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
-                    lockstep_topics="[identifier_node/tick_done, amplifier_node/command_received]")
+                    lockstep_topics="[amplifier_node/command_received]",
+                    pause_when_idle=True)
     else:
         link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
         mock.update(laser_output="emulator", laser_port=link)
@@ -116,7 +131,8 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
                                  "autostart": True, "update_rate_hz": update_rate_hz,
                                  "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
                                  "watchdog_timeout_s": 0.5})
-    rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
+    if model:
+        rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
     if not sim_time:
         rig.start("laser_sensor_node", {"port": f"/tmp/dea_ros_mock_laser_{os.getpid()}", "zero_offset_m": 0.002,
                                         "measuring_rate_hz": 2000.0})
@@ -154,60 +170,149 @@ def resolve_true_params(value: str, membrane: str) -> str:
     raise FileNotFoundError(f"--true-params: no file {value!r} (nor {candidate})")
 
 
+def _start_kernel_warmup(quiet: bool, log_file: Path):
+    """First run (no completed warm-up in the kernel cache): compile the identification's kernels in a
+    background process at low priority while the protocol runs; None when they are cached."""
+    from ..identify.warmup import kernels_cached
+
+    if kernels_cached():
+        return None
+    if not quiet:
+        print("dea-ros rig demo: first run with these kernels: compiling the identification's kernels in the "
+              "background while the protocol runs (cached for later runs)", flush=True)
+    with open(log_file, "w") as log:
+        return subprocess.Popen([sys.executable, "-m", "dea_ros.identify.warmup"], stdout=log,
+                                stderr=subprocess.STDOUT, preexec_fn=lambda: os.nice(10))
+
+
+def _run_protocol(args, rig: RigProcesses, out: Path, run_name: str, line) -> int | None:
+    """Start the rig and identifier_node (recording only) and wait until the bag is closed. Returns the
+    identifier's exit code, or None when a rig process died (reported)."""
+    start_rig(rig, args.membrane, sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
+              update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise, model=args.model_node)
+    ident = rig.start("identifier_node", {
+        "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
+        "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
+        "membrane": args.membrane, "identify": False, "rosbag2_format": args.rosbag2_format,
+        "progress_period_s": 1.0,
+    })
+    while ident.poll() is None:
+        problem = rig.check_alive()
+        if problem:
+            line.print(f"dea-ros rig demo: {problem}; see {out / run_name / 'logs'}")
+            ident.send_signal(signal.SIGINT)
+            ident.wait(timeout=30)
+            return None
+        time.sleep(0.2)
+    line.end()
+    return ident.returncode
+
+
+def _identify(args, run_dir: Path, summary: dict, warmup, line) -> None:
+    """Identification in this process (the rig is down unless --keep-rig), with a live line."""
+    from ..identify.from_bag import identify_bag
+
+    t0 = time.monotonic()
+    if warmup is not None and warmup.poll() is None:
+        while warmup.poll() is None:
+            line.update(f"identifying: waiting for the kernels' first compilation, {time.monotonic() - t0:.0f} s")
+            time.sleep(0.5)
+    summary["phases_s"]["kernel_wait"] = time.monotonic() - t0
+    if warmup is not None and warmup.returncode != 0:
+        line.print(f"dea-ros rig demo: the kernel warm-up failed (see {run_dir / 'logs' / 'kernel_warmup.log'}); "
+                   "the identification compiles them")
+    t_fit = time.monotonic()
+    try:
+        result = identify_bag(Path(summary["bag"]), run_dir, membrane=args.membrane or None,
+                              events=lambda e: line.update(identification_text(e, t0)))
+    except Exception as exc:  # noqa: BLE001 - report, keep the bag
+        summary.update(state="error", error=f"identification failed: {exc}; the bag is kept at {summary['bag']}")
+    else:
+        summary.update(result)
+        summary["identification_wall_time_s"] = time.monotonic() - t_fit
+    line.end()
+
+
+def _print_summary(summary: dict, wall: float, as_json: bool) -> None:
+    if as_json:
+        print(json.dumps({**summary, "wall_time_s": wall}, indent=2, default=str))
+        return
+    print()
+    phases = ", ".join(f"{name} {seconds:.0f} s" for name, seconds in summary.get("phases_s", {}).items()
+                       if name in ("protocol", "identification"))
+    print(f"done in {wall:.0f} s (wall clock: {phases}); state: {summary.get('state')}")
+    if summary.get("error"):
+        print(f"error: {summary['error']}")
+    print(f"  bag:        {summary.get('bag')}")
+    for key, label in (("params_file", "parameters"), ("report_file", "report"), ("report_dir", "plots")):
+        if summary.get(key):
+            print(f"  {label + ':':<11} {summary[key]}")
+    for text in summary.get("headline", []):
+        print(f"  {text}")
+
+
+def _protocol_lines(line, verbose: bool):
+    """The rig's output hook: identifier_node's progress lines drive the live line; other lines are shown
+    only with --verbose, warnings and errors always."""
+    view = ProtocolProgress()
+
+    def on_line(node: str, text: str) -> bool:
+        status = parse_progress(text)
+        if status is not None:
+            shown = view.text(status)
+            if shown:
+                line.update(shown)
+            return True
+        if verbose:
+            line.end()
+            return False
+        if "ERROR" in text or "WARN" in text:
+            line.print(f"[{node}] {text.rstrip()}")
+        return True
+    return on_line
+
+
 def cmd_rig_demo(args) -> int:
     out = Path(args.out).resolve()
     args.true_params = resolve_true_params(args.true_params, args.membrane)
     run_name = args.run_name or time.strftime("demo_%Y%m%d_%H%M%S")
     run_dir = out / run_name
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "logs").mkdir(exist_ok=True)
-    rig = RigProcesses(quiet=not args.verbose, log_dir=run_dir / "logs")
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    line = ProgressLine(quiet=args.quiet or args.json)
+    rig = RigProcesses(quiet=True, log_dir=run_dir / "logs", on_line=_protocol_lines(line, args.verbose))
     t_start = time.monotonic()
-    print(f"dea-ros rig demo: mock rig simulating {args.true_params}; identification from the nominal "
-          f"{args.membrane}; protocol '{args.protocol}', simulated time up to x{args.speed:g}; "
-          f"logs in {run_dir / 'logs'}", flush=True)
+    if not (args.quiet or args.json):
+        print(f"dea-ros rig demo: mock rig simulating {args.true_params}; identification from the nominal "
+              f"{args.membrane}; protocol '{args.protocol}', simulated time up to x{args.speed:g}; "
+              f"logs in {run_dir / 'logs'}", flush=True)
+    warmup_log = run_dir / "logs" / "kernel_warmup.log"
+    warmup = None if args.no_identify else _start_kernel_warmup(args.quiet or args.json, warmup_log)
     try:
-        start_rig(rig, args.membrane, sim_time=True, speed=args.speed, laser_rate_hz=args.laser_rate,
-                  update_rate_hz=args.rate, true_params=args.true_params, noise_m=args.noise)
-        ident = rig.start("identifier_node", {
-            "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
-            "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
-            "membrane": args.membrane,
-            "identify": not args.no_identify, "rosbag2_format": args.rosbag2_format,
-        })
-        while ident.poll() is None:
-            problem = rig.check_alive()
-            if problem:
-                print(f"dea-ros rig demo: {problem}; see {run_dir / 'logs'}", file=sys.stderr)
-                ident.send_signal(signal.SIGINT)
-                ident.wait(timeout=30)
-                return 1
-            time.sleep(0.2)
+        code = _run_protocol(args, rig, out, run_name, line)
+        t_protocol = time.monotonic() - t_start
+        if not args.keep_rig:
+            rig.stop()  # 0 V (the amplifier ramps down), every node down before the identification
+        summary_file = run_dir / "summary.json"
+        if code is None or not summary_file.is_file():
+            print(f"dea-ros rig demo: no summary written (identifier exit code {code}); see {run_dir / 'logs'}",
+                  file=sys.stderr)
+            return 1
+        summary = json.loads(summary_file.read_text())
+        summary["phases_s"] = {"protocol": t_protocol}  # (timings_s: the identification's own)
+        if summary.get("state") == "done" and not args.no_identify:
+            t_ident = time.monotonic()
+            _identify(args, run_dir, summary, warmup, line)
+            summary["phases_s"]["identification"] = time.monotonic() - t_ident
+            summary_file.write_text(json.dumps(summary, indent=2, default=str))
     except KeyboardInterrupt:
+        line.end()
         print("dea-ros rig demo: interrupted; the bag keeps what was recorded", file=sys.stderr)
         return 130
     finally:
         rig.stop()
-    summary_file = run_dir / "summary.json"
-    if not summary_file.is_file():
-        print(f"dea-ros rig demo: no summary written (identifier exit code {ident.returncode}); "
-              f"see {run_dir / 'logs'}", file=sys.stderr)
-        return 1
-    summary = json.loads(summary_file.read_text())
-    wall = time.monotonic() - t_start
-    if args.json:
-        print(json.dumps({**summary, "wall_time_s": wall}, indent=2, default=str))
-    else:
-        print()
-        print(f"done in {wall:.0f} s (wall clock); state: {summary.get('state')}")
-        if summary.get("error"):
-            print(f"error: {summary['error']}")
-        print(f"  bag:        {summary.get('bag')}")
-        for key, label in (("params_file", "parameters"), ("report_file", "report"), ("report_dir", "plots")):
-            if summary.get(key):
-                print(f"  {label + ':':<11} {summary[key]}")
-        for line in summary.get("headline", []):
-            print(f"  {line}")
+        if warmup is not None and warmup.poll() is None:
+            warmup.terminate()
+    _print_summary(summary, time.monotonic() - t_start, args.json)
     return 0 if summary.get("state") == "done" and not summary.get("error") else 1
 
 
@@ -240,6 +345,13 @@ def register(subparsers) -> None:
                            "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
                            "`dea-ros bag convert` changes it later")
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
+    demo.add_argument("--model-node", action="store_true",
+                      help="run model_node too and record its displacement_predicted (not used by the "
+                           "identification; ~20 %% of the lockstep's CPU)")
+    demo.add_argument("--quiet", action="store_true", help="no progress line: only the result (and errors)")
+    demo.add_argument("--keep-rig", action="store_true",
+                      help="keep the rig's nodes up during the identification (default: 0 V, rig shut down, "
+                           "then identify)")
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")
     demo.set_defaults(func=cmd_rig_demo)
     register_check(sub)

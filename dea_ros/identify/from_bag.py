@@ -52,15 +52,21 @@ def _headline(result: IdentificationResult) -> list:
 
 def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = BagTopics(),
                  segments_file=None, progress: Callable[[str], None] | None = None, plots: bool = True,
-                 **identify_options) -> dict:
-    """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict."""
+                 events: Callable[[dict], None] | None = None, **identify_options) -> dict:
+    """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict.
+
+    ``progress``: called with log lines; ``events``: called with every event dict of the fits (``stage``,
+    ``evaluation``, ...) and ``{"stage": "extract"}``, ``{"stage": "report"}`` before those steps."""
     say = progress or (lambda _msg: None)
+    tell = events or (lambda _event: None)
     t0 = time.perf_counter()
+    tell({"stage": "extract"})
     experiments = experiments_from_bag(bag, topics=topics, segments_file=segments_file, membrane=membrane)
     t_extract = time.perf_counter() - t0
     say(f"extracted from the bag in {t_extract:.2f} s: {experiments.summary()}")
 
     def fit_progress(event):
+        tell(event)
         if isinstance(event, dict) and event.get("stage") and event.get("iteration") is not None \
                 and event["iteration"] % 10 == 0:
             say(f"{event['stage']}: iteration {event['iteration']}, cost {event.get('cost', float('nan')):.4g}")
@@ -80,6 +86,7 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
     t_fit = time.perf_counter() - t1
     out = Path(out_dir)
     report_dir = out / "report"
+    tell({"stage": "report"})
     paths = write_report(result, report_dir, plots=plots)
     params_file = out / "params.yaml"
     params_file.write_text(Path(paths["params"]).read_text())

@@ -50,6 +50,7 @@ from std_srvs.srv import Trigger
 
 from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
                    resolve_rosbag2_format)
+from ..bag.message_codec import header_stamp_ns
 from ..identify.bag_experiments import EXPERIMENT_METADATA
 from ..identify.from_bag import identify_bag
 from ..identify.protocols import ProtocolError, load_protocol
@@ -64,7 +65,6 @@ from .common import (
     declare_bool,
     declare_float,
     declare_str,
-    stamp_to_ns,
 )
 from .runner import run_nodes
 
@@ -116,6 +116,8 @@ class IdentifierNode(Node):
             return
         self._create_ticks()
         self.create_timer(0.5, self.publish_status)
+        if self.progress_period_s > 0:  # wall clock: a line a person (or dea-ros rig demo) can follow
+            self.create_timer(self.progress_period_s, self.log_progress, clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.get_logger().info(
             f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
             f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
@@ -145,6 +147,9 @@ class IdentifierNode(Node):
         self.bag_format = declare_str(self, "rosbag2_format", "auto",
                                       "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
                                       "or jazzy (Jazzy and newer)")
+        self.progress_period_s = declare_float(
+            self, "progress_period_s", 0.0, "log a 'progress {json}' line (the ~/status fields, the segment's kind "
+            "and frequency) this often, wall-clock s (0: never)", 0.0, 3600.0)
         self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
         return run_name
 
@@ -165,6 +170,7 @@ class IdentifierNode(Node):
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
         self.skipped_before_clock = 0
+        self.trigger_topic = None  # command_trigger applied_voltage: the recorded topic whose messages trigger
 
     def _load_protocol(self) -> None:
         """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
@@ -212,7 +218,8 @@ class IdentifierNode(Node):
         # applied at once or one update later: a jittered staircase). After the amplifier's output
         # for t_k is seen, the command is for its update at t_k + 1/rate, always; the mock rig's
         # lockstep (amplifier_node/command_received) lets the clock advance only once it arrived.
-        self.create_subscription(BatteryState, TOPIC_VOLTAGE, self.on_applied_voltage, SENSOR_QOS)
+        # The recorder's subscription of the applied voltage is the trigger (one delivery per tick, not two).
+        self.trigger_topic = self.topic_names[TOPIC_VOLTAGE]
         self.create_timer(0.1, self.on_wait_tick, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     # ------------------------------------------------------------------ recording
@@ -275,6 +282,9 @@ class IdentifierNode(Node):
                 bag.write_serialized(topic, data, now_ns)
             except BagError as exc:
                 self.recording_failed(exc)
+                return
+            if topic == self.trigger_topic:
+                self.on_applied_voltage(header_stamp_ns(data))
         return record
 
     def on_voltage_seen(self, msg: BatteryState) -> None:
@@ -332,9 +342,8 @@ class IdentifierNode(Node):
     def now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
 
-    def on_applied_voltage(self, msg: BatteryState) -> None:
-        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp)."""
-        stamp_ns = stamp_to_ns(msg.header.stamp)
+    def on_applied_voltage(self, stamp_ns: int) -> None:
+        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp, ns)."""
         if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
             self.last_trigger_ns = stamp_ns
             self.on_tick(stamp_ns)
@@ -523,14 +532,25 @@ class IdentifierNode(Node):
         self.done()
         return True
 
-    def publish_status(self) -> None:
+    def status(self) -> dict:
+        """The run's state: segment, simulated time since the protocol started (s), its duration (s)."""
         total = self.segments[-1].end_s if self.segments else 0.0
         elapsed = (self.now_ns() - self.t0_ns) * 1e-9 if (self.t0_ns and self.state == "running") else None
-        status = {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
-                  "elapsed_s": elapsed, "duration_s": total,
-                  "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
-                  "bag": str(self.bag_dir), "error": self.error}
-        self.status_pub.publish(String(data=json.dumps(status)))
+        return {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
+                "elapsed_s": elapsed, "duration_s": total,
+                "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
+                "bag": str(self.bag_dir), "error": self.error}
+
+    def publish_status(self) -> None:
+        self.status_pub.publish(String(data=json.dumps(self.status())))
+
+    def log_progress(self) -> None:
+        """``progress_period_s``: the status and the current segment's kind and numbers as one log line."""
+        status = self.status()
+        if 0 <= self.segment_index < len(self.segments):
+            seg = self.segments[self.segment_index]
+            status.update(kind=seg.kind, **{k: v for k, v in seg.info.items() if isinstance(v, (int, float))})
+        self.get_logger().info("progress " + json.dumps(status))
 
     def shutdown_safely(self) -> None:
         """SIGINT/SIGTERM: like the abort service (0 V, bag closed with everything so far)."""

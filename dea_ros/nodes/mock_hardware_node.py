@@ -42,6 +42,15 @@ because the sample went out after the amplifier's update for t_k): the amplifier
 update for t_{k+1}, so a sample-driven controller sees a fixed delay of exactly one tick from
 acquisition to applied voltage (position_controller_node's ``loop_delay_s`` at 1 kHz).
 
+The node sleeps between events: a thread blocks on the amplifier's UDP socket and wakes the executor
+(a guard condition) when a datagram arrives, acknowledgements arrive as messages, and the pacing timer
+runs only while the clock is ahead of ``real_time_factor``. With ``pause_when_idle`` (``dea-ros rig
+demo``) the clock stands once the lockstep participants that acknowledged fall silent for
+``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A paused rig costs no CPU:
+the nodes' timers on the simulated clock do not fire, nothing polls (issue 22). Before the first
+acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V when its
+clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
+
 The simulated amplifier has its own dead-man interlock: when no datagram arrived for
 ``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
 power), its output drops to 0 V by itself, as a real rig's interlock would.
@@ -49,6 +58,7 @@ power), its output drops to 0 V by itself, as a real rig's interlock would.
 from __future__ import annotations
 
 import math
+import threading
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -94,6 +104,8 @@ class MockHardwareNode(Node):
         self.samples_out = True                  # the laser samples of the current tick are published
         self.lockstep_timeouts = 0
         self.ack_times: dict = {}
+        self.paused = False                      # pause_when_idle: no participant active, the clock stands
+        self.wake = threading.Event()            # the executor drained the UDP socket (the waiter may wait again)
         if self.publish_clock and self.lockstep:
             for topic in self.lockstep_topics:
                 self.create_subscription(Header, topic, self.on_ack(topic), 10)
@@ -146,6 +158,10 @@ class MockHardwareNode(Node):
         self.amplifier_deadman_s = declare_float(self, "amplifier_deadman_s", 0.5,
                                                  "the simulated amplifier drops to 0 V when no datagram came for "
                                                  "this long (wall clock), s", 0.01, 10.0)
+        self.pause_when_idle = declare_bool(
+            self, "pause_when_idle", False,
+            "simulated time with lockstep: once a participant acknowledged, the clock stands (and the node "
+            "sleeps) while none acknowledged within lockstep_timeout_s, e.g. after a protocol ended")
         self.lockstep_topics = self.declare_parameter(
             "lockstep_topics", ["identifier_node/tick_done"],
             ParameterDescriptor(description="std_msgs/Header topics of nodes that must finish a tick before the "
@@ -184,10 +200,18 @@ class MockHardwareNode(Node):
         if self.publish_clock:
             self.clock_pub = self.create_publisher(Clock, "/clock", 10)
             self.wall_t0 = time.monotonic()
-            # poll faster than the tick period: a tick waits for the amplifier (lockstep), and the
-            # simulated clock may not run ahead of real_time_factor x the wall clock
-            period = min(1.0 / (self.clock_rate_hz * self.real_time_factor), 0.0005)
+            # event driven: a tick advances when the amplifier's datagram arrives (a thread sleeps on the
+            # UDP socket and wakes the executor by a guard condition) and when an acknowledgement arrives;
+            # the pacing timer runs only while the clock is ahead of real_time_factor x the wall clock, a
+            # slow one catches the lockstep timeouts. A paused or waiting rig costs no CPU.
+            period = min(1.0 / (self.clock_rate_hz * self.real_time_factor), 0.0005)  # catches up when late
             self.timer = self.create_timer(period, self.on_sim_tick, clock=_wall_clock())
+            self.timer.cancel()
+            self.watch_timer = self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick,
+                                                 clock=_wall_clock())
+            self.udp_ready = self.create_guard_condition(self.on_sim_tick)
+            self.waiter = threading.Thread(target=self._wait_for_amplifier, daemon=True)
+            self.waiter.start()
         else:
             self.timer = self.create_timer(0.002, self.on_realtime_tick)
         self.mono_to_ros = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
@@ -195,6 +219,14 @@ class MockHardwareNode(Node):
         self.create_timer(1.0, self.publish_diagnostics, clock=_wall_clock())
 
     # ------------------------------------------------------------------ time
+    def _wait_for_amplifier(self) -> None:
+        """Thread: sleep on the amplifier's UDP socket; wake the executor when a datagram is pending."""
+        while self.receiver.is_open:
+            if self.receiver.wait_readable(0.2):
+                self.wake.clear()
+                self.udp_ready.trigger()
+                self.wake.wait(0.2)  # until the executor drained the socket
+
     def poll_amplifier(self) -> None:
         """Apply the amplifier's outputs received since the last poll, each from its send time.
 
@@ -203,7 +235,9 @@ class MockHardwareNode(Node):
         simulated clock (use_sim_time). The simulator integrates up to that instant with the
         previous voltage first, so executor and transport delays do not shift the physics.
         """
-        for received in self.receiver.poll_all():
+        received_all = self.receiver.poll_all()
+        self.wake.set()
+        for received in received_all:
             if self.publish_clock:
                 self.amp_time_s = max(self.amp_time_s or received.sent_s, received.sent_s)
                 self.sim.apply_voltage(received.voltage_V, from_s=received.sent_s)
@@ -247,6 +281,25 @@ class MockHardwareNode(Node):
                 return topic  # an active participant (acked within the timeout) is behind
         return None
 
+    def _pause_if_idle(self) -> bool:
+        """``pause_when_idle``: True (the clock stands) while no participant acknowledged within the timeout,
+        once one has (before, the clock runs: the nodes starting need it, and amplifier_node ramps to 0 V
+        when its clock stalls for 2 s while it is active)."""
+        if not self.ack_times:
+            return False
+        now = time.monotonic()
+        idle = not any(now - wall_s < self.lockstep_timeout_s for _stamp, wall_s in self.ack_times.values())
+        if idle != self.paused:
+            self.paused = idle
+            if idle:
+                self.watch_timer.cancel()  # nothing to time out: an acknowledgement resumes the clock
+            else:
+                self.watch_timer.reset()
+            self.wall_t0 = now - self.tick_index / (self.clock_rate_hz * self.real_time_factor)  # no catch-up burst
+            self.get_logger().info(f"simulated clock {'paused' if idle else 'resumed'} at t = "
+                                   f"{self.clock_time_s - self.sim_t0:.3f} s (simulated)")
+        return idle
+
     def on_ack(self, topic: str):
         def record(msg: Header) -> None:
             self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
@@ -286,8 +339,14 @@ class MockHardwareNode(Node):
         if not self.samples_out and not self.release_samples():
             return
         if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self.real_time_factor:
-            return  # ahead of the requested speed
+            if self.timer.is_canceled():
+                self.timer.reset()
+            return  # ahead of the requested speed: the pacing timer calls again
+        if not self.timer.is_canceled():
+            self.timer.cancel()
         if self.lockstep and self.clock_time_s is not None:
+            if self.pause_when_idle and self._pause_if_idle():
+                return
             behind = self.participants_behind()
             if behind is not None and not self._waited_too_long(behind):
                 return
@@ -297,12 +356,18 @@ class MockHardwareNode(Node):
         self.clock_time_s = t_new
         self.samples_out = False
         self.tick_wall_s = time.monotonic()
-        msg = Clock()
-        sec = math.floor(t_new)
-        msg.clock.sec = int(sec)
-        msg.clock.nanosec = min(int(round((t_new - sec) * 1e9)), 999_999_999)
-        self.clock_pub.publish(msg)
+        self.publish_clock_time()
         self.release_samples()  # at once when the amplifier is not waited for
+        if not (self.lockstep and (self.amp_time_s is not None or self.ack_times)) and self.timer.is_canceled():
+            self.timer.reset()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
+
+    def publish_clock_time(self) -> None:
+        """Publish ``/clock`` = the current tick's time."""
+        msg = Clock()
+        sec = math.floor(self.clock_time_s)
+        msg.clock.sec = int(sec)
+        msg.clock.nanosec = min(int(round((self.clock_time_s - sec) * 1e9)), 999_999_999)
+        self.clock_pub.publish(msg)
 
     def publish_diagnostics(self) -> None:
         lag = (time.monotonic() - self.wall_t0) * self.real_time_factor - (self.sim.t_s - self.sim_t0) \

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import select
 import socket
 import time
 from dataclasses import dataclass
@@ -197,6 +198,19 @@ class MockAmplifierReceiver:
             )
             fresh.append(self._latest)
         return fresh
+
+    def wait_readable(self, timeout_s: float) -> bool:
+        """Block up to ``timeout_s`` until a datagram is pending (True) or not (False; also once closed).
+
+        For a simulator that sleeps until the amplifier sends instead of polling on a timer."""
+        sock = self._socket
+        if sock is None:
+            return False
+        try:
+            readable, _, _ = select.select([sock], [], [], timeout_s)
+        except (OSError, ValueError):  # closed meanwhile
+            return False
+        return bool(readable)
 
     def close(self) -> None:
         if self._socket is not None:
