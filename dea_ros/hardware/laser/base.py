@@ -39,6 +39,7 @@ __all__ = [
     "DisplacementSensor",
     "validated_tare_offset_m",
     "validated_measuring_range_m",
+    "validated_positive",
 ]
 
 
@@ -108,6 +109,14 @@ class DisplacementReading(NamedTuple):
     def error(self) -> MeasurementError | None:
         """The error of an error sample, or ``None`` for a valid one."""
         return self.value if isinstance(self.value, MeasurementError) else None
+
+
+def validated_positive(name: str, value: float) -> float:
+    """``value`` as a positive finite float; ``ValueError`` naming the setting otherwise."""
+    number = float(value)
+    if not (math.isfinite(number) and number > 0.0):
+        raise ValueError(f"{name} must be positive, got {value!r}")
+    return number
 
 
 def validated_measuring_range_m(measuring_range_m: float) -> float:
