@@ -33,6 +33,7 @@ reports ``state: error`` with the cause, and the node exits with code 1.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import threading
 import time
@@ -281,8 +282,9 @@ class IdentifierNode(Node):
         if msg.present:
             self.rig_seen["voltage_enabled"] = True
 
-    def on_displacement_seen(self, _msg: Range) -> None:
-        self.rig_seen["displacement"] = True
+    def on_displacement_seen(self, msg: Range) -> None:
+        if math.isfinite(msg.range):  # NaN: a sample laser_sensor_node flagged implausible (REP 117)
+            self.rig_seen["displacement"] = True
 
     def experiment_metadata(self, completed: int, aborted: bool) -> dict:
         return {

@@ -110,8 +110,8 @@ class ILD1320Sensor(DisplacementSensor):
     * ``measuring_rate_hz``: rate to set on every :meth:`open` (``None``: keep the sensor's
       setting, which must be an ILD1320 rate); read back and checked;
     * ``enable_rs422_output``: send ``OUTPUT RS422`` on :meth:`open` so that values are streamed;
-    * ``max_speed_m_per_s``, ``jump_tolerance_m``, ``confirm_samples``: plausibility limits of
-      :class:`PlausibilityFilter`;
+    * ``max_speed_m_per_s``, ``jump_tolerance_m``, ``confirm_samples``, ``max_acceleration_m_per_s2``:
+      of :class:`PlausibilityFilter` (a discarded sample's decoded value is the reading's ``raw_m``);
     * ``no_data_timeout_periods``, ``min_no_data_timeout_s``: silence longer than
       ``max(periods / rate, min)`` means disconnected;
     * ``resync_timeout_s``: bound of the resynchronisation at every :meth:`open` (see
@@ -136,6 +136,7 @@ class ILD1320Sensor(DisplacementSensor):
         jump_tolerance_m: float = DEFAULT_JUMP_TOLERANCE_M,
         confirm_samples: int = DEFAULT_CONFIRM_SAMPLES,
         resync_timeout_s: float = 3.0,
+        max_acceleration_m_per_s2: float | None = None,
     ) -> None:
         self._port = str(port)
         self._baudrate = int(validated_positive("baudrate", baudrate))
@@ -163,12 +164,11 @@ class ILD1320Sensor(DisplacementSensor):
             self._decoder.measuring_range_m,
             max_speed_m_per_s=max_speed_m_per_s,
             jump_tolerance_m=jump_tolerance_m,
-            confirm_samples=confirm_samples,
-        )
+            confirm_samples=confirm_samples, max_acceleration_m_per_s2=max_acceleration_m_per_s2)
         self._configuring = False
         self._settle_remaining = 0
         self._connect_report: LaserSensorReport | None = None
-        self._queue: collections.deque[tuple[float, float | MeasurementError]] = collections.deque()
+        self._queue: collections.deque[tuple[float, float | MeasurementError, float]] = collections.deque()
         self._max_queued = int(max_queued_samples)
         if self._max_queued < 1:
             raise ValueError(f"max_queued_samples must be >= 1, got {max_queued_samples!r}")
@@ -526,7 +526,8 @@ class ILD1320Sensor(DisplacementSensor):
             if len(self._queue) >= self._max_queued:
                 self._queue.popleft()
                 self.samples_dropped_queue_full += 1
-            self._queue.append((t_s, value))
+            self._queue.append((t_s, value, sample.value if isinstance(value, MeasurementError)
+                                and not isinstance(sample.value, MeasurementError) else math.nan))
             queued += 1
             if not isinstance(value, MeasurementError):
                 self._recent_valid_m.append(value)
@@ -567,10 +568,9 @@ class ILD1320Sensor(DisplacementSensor):
         tare = self._tare_m
         readings = []
         for _ in range(count):
-            t_s, value = self._queue.popleft()
-            if not isinstance(value, MeasurementError):
-                value = value - tare
-            readings.append(DisplacementReading(t_s, value))
+            t_s, value, raw = self._queue.popleft()
+            readings.append(DisplacementReading(t_s, value if isinstance(value, MeasurementError) else value - tare,
+                                                raw - tare))
         return readings
 
     # ------------------------------------------------------------------ commands
