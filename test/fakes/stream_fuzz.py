@@ -94,4 +94,3 @@ def fuzz_stream(truth_m: np.ndarray, rate_hz: float, seed: int, *, p_drop=0.01, 
         fabricated += error > q
         jumps += error > filt.allowed_jump_m(1.0 / rate_hz)
     return FuzzResult(len(codes), decoded, decoded_fab, max_jump, accepted, fabricated, jumps, max_err, flagged)
-
