@@ -5,7 +5,7 @@
 * ``dea-ros rig demo``: the main job. The same rig in simulated time (the mock publishes
   ``/clock`` at ``--speed`` times real time, every node runs with ``use_sim_time``), plus
   identifier_node running a protocol: bag -> experiments -> identified parameters -> report.
-  ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
+  ``--rosbag2-format humble|jazzy`` picks the bag format (default humble: every distro reads it).
   Ends by printing where the bag, the parameters and the plots are.
 
 Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
@@ -237,7 +237,7 @@ def register(subparsers) -> None:
     demo.add_argument("--no-identify", action="store_true", help="record only")
     demo.add_argument("--rosbag2-format", choices=("auto", "humble", "jazzy"), default="auto",
                       help="bag format: humble (metadata version 5: Humble and newer read it), jazzy (version 9: "
-                           "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
+                           "Jazzy and newer) or auto: humble, which every supported distro reads (default: auto). "
                            "`dea-ros bag convert` changes it later")
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
     demo.add_argument("--json", action="store_true", help="print the summary as JSON")

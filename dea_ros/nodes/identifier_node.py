@@ -10,7 +10,7 @@
    ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
    offered by each of its publishers discovered when its first message arrives (one profile per
-   publisher). ``rosbag2_format``: ``auto`` (from ``ROS_DISTRO``), ``humble`` or ``jazzy``.
+   publisher). ``rosbag2_format``: ``auto`` (= ``humble``, read by every distro), ``humble`` or ``jazzy``.
 4. At the end: 0 V, bag closed, then in a background thread the offline identification
    (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
 
@@ -144,7 +144,7 @@ class IdentifierNode(Node):
         self.max_voltage_V = declare_float(self, "max_voltage_V", 0.0, "refuse protocols above this (0: no check)",
                                            0.0, 30000.0)
         self.bag_format = declare_str(self, "rosbag2_format", "auto",
-                                      "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
+                                      "bag format: auto (= humble), humble (Humble and newer read it) "
                                       "or jazzy (Jazzy and newer)")
         self.membrane_override = declare_str(self, "membrane", "", "geometry for the fit (default: the protocol's)")
         return run_name
