@@ -26,7 +26,7 @@ from pathlib import Path
 
 from .rig_check import register as register_check
 
-__all__ = ["register", "RigProcesses"]
+__all__ = ["register", "RigProcesses", "start_rig", "DEFAULT_START_DELAYS_S"]
 
 
 def _free_udp_port() -> int:
@@ -96,30 +96,46 @@ class RigProcesses:
         return None
 
 
+#: When each node of ``dea-ros rig up`` starts, s after the first: the mock first (its emulator and
+#: amplifier receiver), the others once it is up.
+DEFAULT_START_DELAYS_S = {"mock_hardware_node": 0.0, "amplifier_node": 1.0, "model_node": 1.0,
+                          "laser_sensor_node": 1.0}
+
+
 def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
-              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6) -> None:
+              update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6,
+              start_delays_s: dict[str, float] | None = None) -> None:
+    """Start the rig's nodes, each ``start_delays_s[node]`` s after the call (default
+    :data:`DEFAULT_START_DELAYS_S`), in the order of their delays: any order must work, as on a lab
+    PC where processes start when they start (a sensor that streamed unread meanwhile included)."""
     port = _free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
+    link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
     if sim_time:
         # the clock waits for the identifier's tick and for its command to reach the amplifier
         # (identifier_node command_trigger applied_voltage): every command applied one update later
         mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
                     lockstep_topics="[identifier_node/tick_done, amplifier_node/command_received]")
     else:
-        link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
         mock.update(laser_output="emulator", laser_port=link)
-    rig.start("mock_hardware_node", mock)
-    time.sleep(1.0)
     common = {"use_sim_time": sim_time}
-    rig.start("amplifier_node", {**common, "params_file": membrane, "backend": "mock", "mock_port": port,
-                                 "autostart": True, "update_rate_hz": update_rate_hz,
-                                 "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
-                                 "watchdog_timeout_s": 0.5})
-    rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
-    if not sim_time:
-        rig.start("laser_sensor_node", {"port": f"/tmp/dea_ros_mock_laser_{os.getpid()}", "zero_offset_m": 0.002,
-                                        "measuring_rate_hz": 2000.0})
+    nodes = {
+        "mock_hardware_node": mock,
+        "amplifier_node": {**common, "params_file": membrane, "backend": "mock", "mock_port": port,
+                           "autostart": True, "update_rate_hz": update_rate_hz,
+                           "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
+                           "watchdog_timeout_s": 0.5},
+        "model_node": {**common, "params_file": membrane, "rate_hz": update_rate_hz},
+    }
+    if not sim_time:  # plausibility limits from the membrane's model (hardware/laser/plausibility.py)
+        nodes["laser_sensor_node"] = {"port": link, "zero_offset_m": 0.002, "measuring_rate_hz": 2000.0,
+                                      "params_file": membrane}
+    delays = {**DEFAULT_START_DELAYS_S, **(start_delays_s or {})}
+    start = time.monotonic()
+    for name in sorted(nodes, key=lambda n: delays[n]):
+        time.sleep(max(0.0, start + delays[name] - time.monotonic()))
+        rig.start(name, nodes[name])
 
 
 def cmd_rig_up(args) -> int:
