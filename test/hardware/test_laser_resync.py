@@ -74,6 +74,9 @@ def test_the_issues_reply_parses_and_an_error_behind_garbage_stays_an_error():
 def test_connect_after_the_sensor_streamed_unread(unread_s):
     with FaultyILD1320Emulator(slow_truth, measuring_rate_hz=2000.0) as emu:
         emu.stream_unread_for(unread_s)
+        # the streaming happened before the connect (the emulator makes those frames in a burst,
+        # seconds of CPU on a loaded machine; a sensor makes them in real time)
+        assert wait_until(lambda: emu.frames_emitted >= unread_s * 2000.0, 60.0)
         if unread_s >= 30.0:  # 48 kB in 8 s fit the pty and the 64 kB buffer; 180 kB do not: trimmed
             assert wait_until(lambda: emu.bytes_dropped_overflow > 0)
         with ILD1320Sensor(emu.port_path, measuring_range_m=MR, measuring_rate_hz=2000.0,

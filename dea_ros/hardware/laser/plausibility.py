@@ -132,6 +132,9 @@ class PlausibilityFilter:
     error codes included) and ``reanchors``. Never raises on values.
     """
 
+    #: With the acceleration check: a reference more than this many sample spacings old needs confirmation.
+    STALE_SPACINGS = 4.0
+
     def __init__(
         self,
         measuring_range_m: float = DEFAULT_MEASURING_RANGE_M,
@@ -183,11 +186,15 @@ class PlausibilityFilter:
         return abs(d_m - a[1]) <= self.allowed_jump_m(t_s - a[0])
 
     def _on_trend(self, t_s: float, d_m: float) -> bool:
-        """Within the acceleration limit of the extrapolation of the last two accepted samples."""
+        """Within the acceleration limit of the extrapolation of the last two accepted samples; a
+        reference older than ``STALE_SPACINGS`` sample spacings is no trend (the allowance would have
+        grown past what a corrupted value needs): the chain of consistent samples decides then."""
         if self.max_acceleration_m_per_s2 is None or self._velocity is None or self._ref is None:
             return True
         v_ref, dt_ref = self._velocity
         dt = t_s - self._ref[0]
+        if dt > self.STALE_SPACINGS * dt_ref:
+            return False
         allowed = 0.5 * self.max_acceleration_m_per_s2 * dt * dt \
             + self.jump_tolerance_m * (1.0 + 2.0 * dt / dt_ref)
         return abs(d_m - self._ref[1] - v_ref * dt) <= allowed
@@ -221,13 +228,13 @@ class PlausibilityFilter:
             return self._reject(MeasurementError.AFTER_FRAMING_ERROR)
         if not 0.0 <= d <= self.measuring_range_m:
             return self._reject(MeasurementError.OUTSIDE_MEASURING_RANGE)
+        off_trend = False
         if self._ref is not None and self._consistent(self._ref, t, d):
-            if not self._on_trend(t, d):
-                self._chain = [(t, d)]
-                return self._reject(MeasurementError.IMPLAUSIBLE_ACCELERATION)
-            self._chain = []
-            self._accept(t, d)
-            return d
+            if self._on_trend(t, d):
+                self._chain = []
+                self._accept(t, d)
+                return d
+            off_trend = True  # the chain of consistent samples decides
         if self._chain and self._consistent(self._chain[-1], t, d):
             self._chain.append((t, d))
         else:
@@ -240,6 +247,8 @@ class PlausibilityFilter:
             self._accept(t, d)
             self._chain = []
             return d
+        if off_trend:
+            return self._reject(MeasurementError.IMPLAUSIBLE_ACCELERATION)
         return self._reject(
             MeasurementError.UNCONFIRMED if self._ref is None else MeasurementError.IMPLAUSIBLE_JUMP
         )
