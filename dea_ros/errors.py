@@ -16,6 +16,7 @@ __all__ = [
     "ParameterError", "NoEquilibriumError",
     # solvers
     "HarmonicBalanceError", "ContinuationError", "IntegrationError", "SteadyStateError", "TransientError",
+    "VoltageRecordError",
     # identification
     "ExperimentError", "StaticFitError", "DynamicFitError", "JointFitError", "IdentificationError",
     "ProtocolError",
@@ -65,6 +66,10 @@ class IntegrationError(DeaRosError, RuntimeError):
 
 class SteadyStateError(DeaRosError, RuntimeError):
     """Forward integration did not reach the periodic steady state in the time allowed."""
+
+
+class VoltageRecordError(DeaRosError, ValueError):
+    """A recorded voltage that cannot drive a simulation (e.g. one row: an instant, not a record)."""
 
 
 class TransientError(DeaRosError, RuntimeError):

@@ -83,6 +83,8 @@ def bad_files(tmp_path):
         "kilovolts": b"time_s,voltage_V\n0,0\n0.5,2.5\n1,2.2\n",
         "negative": b"time_s,voltage_V\n0,0\n0.5,-2500\n1,2500\n",
         "time_backwards": b"time_s,voltage_V\n0,0\n0.5,2500\n0.2,2500\n",
+        "one_row": b"time_s,voltage_V\n0,2500\n",
+        "header_only": b"time_s,voltage_V\n",
         "existing": b"x",
     }
     paths = {}
@@ -102,6 +104,8 @@ def bad_files(tmp_path):
         (["simulate", "--input-csv", "{kilovolts}"], "this looks like kV"),
         (["simulate", "--input-csv", "{negative}"], "negative voltage -2500 V"),
         (["simulate", "--input-csv", "{time_backwards}"], "--input-csv {time_backwards}: time_s"),
+        (["simulate", "--input-csv", "{one_row}"], "--input-csv {one_row}: 1 data row(s); a voltage record needs"),
+        (["simulate", "--input-csv", "{header_only}"], "--input-csv {header_only}"),
         (["simulate", "--duration", "1e9"], "--duration: 1e+09 s is beyond the 1000 s limit"),
         (["simulate", "--duration", "900", "--rate", "1e5"], "output samples exceed the limit"),
         (["simulate", "--out", "{existing}/x.csv"], "--out {existing}/x.csv: folder"),

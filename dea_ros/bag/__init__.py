@@ -44,8 +44,8 @@ On-disk format (what ``ros2 bag record -s mcap -o <dir>`` writes)
   ``rosbag2_format="humble"``: metadata version 5 with integer QoS enums in a YAML string, no
   ``type_description_hash``/``custom_data``/``ros_distro`` fields, an MCAP ``rosbag2`` record
   ``{ROS_DISTRO: ...}`` as Humble's storage plugin writes -> readable by Humble and every newer
-  distro (Humble's reader rejects version 9 metadata). Default (``None``/``"auto"``): from
-  ``$ROS_DISTRO`` (Humble/Iron -> humble, else jazzy). ``convert_bag(dir, "humble")`` (CLI
+  distro (Humble's reader rejects version 9 metadata). Default (``None``/``"auto"``): humble,
+  the format every supported distro reads, whatever ``$ROS_DISTRO`` says. ``convert_bag(dir, "humble")`` (CLI
   ``dea-ros bag convert DIR --to humble``) rewrites a bag in the other format, losslessly.
   ``docs/rosbag2_formats.md`` lists what each distro's parser requires and how it was checked.
 * Timestamps: ``log_time`` = receive/record time (rosbag2 ``recv_timestamp``), ``publish_time``
@@ -57,7 +57,7 @@ Opening the bags with ROS tools
 * ``ros2 bag info <dir>`` and ``ros2 bag play <dir>`` (Humble or newer with the MCAP storage
   plugin: ``sudo apt install ros-$ROS_DISTRO-rosbag2-storage-mcap``; it is the default storage
   from Iron on; on Humble add ``-s mcap`` if auto-detection fails). Record Humble-playable bags
-  with ``BagWriter(..., rosbag2_format="humble")`` (the default where ``ROS_DISTRO=humble``) or
+  with ``BagWriter(..., rosbag2_format="humble")`` (the default) or
   convert them afterwards. Playback re-offers the recorded QoS.
 * Foxglove Studio / Foxglove app: open ``<dir>/<dirname>_0.mcap`` (File > Open local file); the
   ``ros2msg`` schemas in the file decode everything without a ROS installation.

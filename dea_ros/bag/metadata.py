@@ -20,8 +20,8 @@ metadata version from it to decode the channels' ``offered_qos_profiles``.
 An empty bag has ``starting_time`` = ``INT64_MAX`` and ``duration`` = 0, as rosbag2's
 ``SequentialWriter::init_metadata`` leaves it.
 
-Which format: :func:`default_rosbag2_format` picks it from ``$ROS_DISTRO`` (``humble`` and
-``iron`` -> ``"humble"``, anything else or unset -> ``"jazzy"``); ``ros_distro`` is never written
+Which format: :func:`default_rosbag2_format`: ``"humble"`` (metadata version 5), which every supported
+distro reads, unless the user asks for ``"jazzy"`` (version 9); ``ros_distro`` is never written
 empty (:func:`ros_distro_for_format`: ``$ROS_DISTRO``, else the format's distro name). What each
 distro's rosbag2 requires of these files is described in ``docs/rosbag2_formats.md``.
 """
@@ -69,10 +69,6 @@ ROSBAG2_METADATA_RECORD = "rosbag2"
 CUSTOM_DATA_RECORD = "rosbag2.custom_data"
 
 
-#: ROS distributions whose rosbag2 cannot read metadata version 9 (they get the Humble format).
-_PRE_JAZZY_DISTROS = ("humble", "iron")
-
-
 def metadata_version_for_format(rosbag2_format: str) -> int:
     """``"jazzy"`` -> 9, ``"humble"`` -> 5; ``BagError`` for anything else."""
     try:
@@ -90,14 +86,17 @@ def format_for_metadata_version(version: int) -> str:
     return "jazzy" if version >= ROSBAG2_FORMAT_VERSIONS["jazzy"] else "humble"
 
 
-def default_rosbag2_format(ros_distro: str | None = None) -> str:
-    """The format the distro's ``ros2 bag`` reads: ``"humble"`` for Humble (and Iron), else ``"jazzy"``.
+def default_rosbag2_format() -> str:
+    """``"humble"``: the format every supported distro's ``ros2 bag`` reads (Humble, Iron, Jazzy, Kilted,
+    Rolling), whatever ``$ROS_DISTRO`` says or whether ROS is sourced at all.
 
-    * ``ros_distro``: distro name; default ``$ROS_DISTRO``. Unset (e.g. ROS from PyPI wheels)
-      gives ``"jazzy"``, which Jazzy, Kilted and Rolling read.
+    A bag is read on other machines than the one that recorded it (lab PCs run Humble and Jazzy),
+    so the recorder's distro says nothing about the reader's. The Humble format (metadata version
+    5) loses nothing a Jazzy bag carries: ``custom_data`` and the type hashes are kept in MCAP
+    records and channel metadata (``dea-ros bag convert --to jazzy`` restores a version 9 bag);
+    ``rosbag2_format="jazzy"`` writes version 9 directly (Jazzy and newer only).
     """
-    distro = os.environ.get("ROS_DISTRO", "") if ros_distro is None else ros_distro
-    return "humble" if distro.strip().lower() in _PRE_JAZZY_DISTROS else "jazzy"
+    return "humble"
 
 
 def resolve_rosbag2_format(rosbag2_format: str | None) -> str:

@@ -141,7 +141,7 @@ class BagWriter:
     * ``fsync``: ``os.fsync`` on every flush (survive power loss, not only process death).
     * ``rosbag2_format``: ``"jazzy"`` (metadata version 9: Jazzy, Kilted, Rolling),
       ``"humble"`` (metadata version 5, readable by Humble and newer) or ``None``/``"auto"``:
-      from ``$ROS_DISTRO`` (:func:`~dea_ros.bag.metadata.default_rosbag2_format`).
+      ``"humble"``, which every supported distro reads (:func:`~dea_ros.bag.metadata.default_rosbag2_format`).
     * ``ros_distro``: the distro recorded (``metadata.yaml`` v9; MCAP ``rosbag2`` record
       ``ROS_DISTRO`` for Humble, as Humble's storage plugin writes); default ``$ROS_DISTRO``,
       else the format's name (never empty).

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CliError
+from ..errors import CliError, VoltageRecordError
 from .common import add_membrane_args, check_output_file, finite, load_membrane, matplotlib_pyplot, print_json
 
 __all__ = ["register", "cmd_equilibrium", "cmd_simulate", "load_voltage_csv", "MAX_SIMULATE_DURATION_S",
@@ -147,6 +147,11 @@ def load_voltage_csv(path: str):
         check_recorded_voltage(u, f"--input-csv {path}: column voltage_V")
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    if t.size < 2:
+        raise VoltageRecordError(
+            f"--input-csv {path}: {t.size} data row(s); a voltage record needs at least two rows (time_s, "
+            "voltage_V) spanning a time: one row is an instant, and simulating it would hold that value "
+            "for --duration as if it had been recorded")
     return t, u
 
 

@@ -11,7 +11,7 @@
   identification's numba kernels compile in a background process while the protocol runs.
   One live line follows the protocol (segment, simulated time, speed, ETA) and the identification
   (stage, evaluations, elapsed); plain lines every 10 s when stdout is not a terminal; none with
-  ``--quiet``. ``--rosbag2-format humble|jazzy`` picks the bag format (default from ``ROS_DISTRO``).
+  ``--quiet``. ``--rosbag2-format humble|jazzy`` picks the bag format (default humble: every distro reads it).
   Ends by printing where the bag, the parameters and the plots are, and the time of each phase.
 
 Each node runs in its own process (``python -m dea_ros.nodes.<node> --ros-args ...``), exactly
@@ -33,7 +33,7 @@ from pathlib import Path
 from .progress import ProgressLine, ProtocolProgress, identification_text, parse_progress
 from .rig_check import register as register_check
 
-__all__ = ["register", "RigProcesses"]
+__all__ = ["register", "RigProcesses", "start_rig", "DEFAULT_START_DELAYS_S"]
 
 
 def _free_udp_port() -> int:
@@ -106,13 +106,22 @@ class RigProcesses:
         return None
 
 
+#: When each node of ``dea-ros rig up`` starts, s after the first: the mock first (its emulator and
+#: amplifier receiver), the others once it is up.
+DEFAULT_START_DELAYS_S = {"mock_hardware_node": 0.0, "amplifier_node": 1.0, "model_node": 1.0,
+                          "laser_sensor_node": 1.0}
+
+
 def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
               update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6,
-              model: bool = True) -> None:
-    """The rig's processes: mock, amplifier, model_node (``model``) and, in real time, laser_sensor_node."""
+              model: bool = True, start_delays_s: dict[str, float] | None = None) -> None:
+    """Start the rig's nodes (model_node only with ``model``), each ``start_delays_s[node]`` s after the
+    call (default :data:`DEFAULT_START_DELAYS_S`), in the order of their delays: any order must work,
+    as on a lab PC where processes start when they start (a sensor that streamed unread meanwhile included)."""
     port = _free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
+    link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
     if sim_time:
         # the clock waits for the identifier's command to reach the amplifier (identifier_node
         # command_trigger applied_voltage: one command per amplifier update, so the amplifier's receipt
@@ -122,20 +131,25 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
                     lockstep_topics="[amplifier_node/command_received]",
                     pause_when_idle=True)
     else:
-        link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"
         mock.update(laser_output="emulator", laser_port=link)
-    rig.start("mock_hardware_node", mock)
-    time.sleep(1.0)
     common = {"use_sim_time": sim_time}
-    rig.start("amplifier_node", {**common, "params_file": membrane, "backend": "mock", "mock_port": port,
-                                 "autostart": True, "update_rate_hz": update_rate_hz,
-                                 "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
-                                 "watchdog_timeout_s": 0.5})
+    nodes = {
+        "mock_hardware_node": mock,
+        "amplifier_node": {**common, "params_file": membrane, "backend": "mock", "mock_port": port,
+                           "autostart": True, "update_rate_hz": update_rate_hz,
+                           "slew_rate_V_per_s": 400000.0, "ramp_down_rate_V_per_s": 20000.0,
+                           "watchdog_timeout_s": 0.5},
+    }
     if model:
-        rig.start("model_node", {**common, "params_file": membrane, "rate_hz": update_rate_hz})
-    if not sim_time:
-        rig.start("laser_sensor_node", {"port": f"/tmp/dea_ros_mock_laser_{os.getpid()}", "zero_offset_m": 0.002,
-                                        "measuring_rate_hz": 2000.0})
+        nodes["model_node"] = {**common, "params_file": membrane, "rate_hz": update_rate_hz}
+    if not sim_time:  # plausibility limits from the membrane's model (hardware/laser/plausibility.py)
+        nodes["laser_sensor_node"] = {"port": link, "zero_offset_m": 0.002, "measuring_rate_hz": 2000.0,
+                                      "params_file": membrane}
+    delays = {**DEFAULT_START_DELAYS_S, **(start_delays_s or {})}
+    start = time.monotonic()
+    for name in sorted(nodes, key=lambda n: delays[n]):
+        time.sleep(max(0.0, start + delays[name] - time.monotonic()))
+        rig.start(name, nodes[name])
 
 
 def cmd_rig_up(args) -> int:
@@ -342,7 +356,7 @@ def register(subparsers) -> None:
     demo.add_argument("--no-identify", action="store_true", help="record only")
     demo.add_argument("--rosbag2-format", choices=("auto", "humble", "jazzy"), default="auto",
                       help="bag format: humble (metadata version 5: Humble and newer read it), jazzy (version 9: "
-                           "Jazzy and newer) or auto: from ROS_DISTRO, jazzy when unset (default: auto). "
+                           "Jazzy and newer) or auto: humble, which every supported distro reads (default: auto). "
                            "`dea-ros bag convert` changes it later")
     demo.add_argument("--verbose", action="store_true", help="print every node's log")
     demo.add_argument("--model-node", action="store_true",

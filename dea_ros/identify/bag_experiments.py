@@ -2,7 +2,8 @@
 
 Signals: the applied voltage (``sensor_msgs/msg/BatteryState`` -> ``voltage``, or
 ``std_msgs/msg/Float64`` -> ``data``) and the displacement (``sensor_msgs/msg/Range`` ->
-``range``, or ``std_msgs/msg/Float64``). Stamped messages use their header stamp (the acquisition
+``range``, or ``std_msgs/msg/Float64``; a non-finite displacement -- a sample laser_sensor_node
+flagged implausible, REP 117's invalid -- is skipped). Stamped messages use their header stamp (the acquisition
 time), others the bag's log time. Topic names are configurable (:class:`BagTopics`). The bag is
 read with the public API of :mod:`dea_ros.bag` (:class:`~dea_ros.bag.BagReader`).
 
@@ -134,6 +135,8 @@ def read_signals(path, topics: BagTopics = BagTopics()) -> BagSignals:
             value = float(getattr(msg, value_field))
             if role == "voltage" and hasattr(msg, "present") and not msg.present:
                 value = 0.0 if not math.isfinite(value) else value
+            if role == "displacement" and not math.isfinite(value):
+                continue  # flagged invalid by laser_sensor_node (REP 117 NaN; the value is on displacement_implausible)
             series[role][0].append(t)
             series[role][1].append(value)
         meta = bag.metadata()

@@ -36,7 +36,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from sensor_msgs.msg import BatteryState, Range
 
 __all__ = [
-    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_PREDICTED",
+    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_IMPLAUSIBLE",
+    "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
     "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
 ]
@@ -44,6 +45,9 @@ __all__ = [
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
 TOPIC_VOLTAGE = "voltage"
 TOPIC_DISPLACEMENT = "displacement"
+#: Samples laser_sensor_node's plausibility checks discarded (their decoded value; ``displacement``
+#: carries NaN at the same stamp).
+TOPIC_DISPLACEMENT_IMPLAUSIBLE = "displacement_implausible"
 TOPIC_DISPLACEMENT_PREDICTED = "displacement_predicted"
 
 #: high-rate streams (displacement, predictions, applied voltage): best effort, keep last 50

@@ -10,7 +10,7 @@
    ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
    offered by each of its publishers discovered when its first message arrives (one profile per
-   publisher). ``rosbag2_format``: ``auto`` (from ``ROS_DISTRO``), ``humble`` or ``jazzy``.
+   publisher). ``rosbag2_format``: ``auto`` (= ``humble``, read by every distro), ``humble`` or ``jazzy``.
 4. At the end: 0 V, bag closed, then in a background thread the offline identification
    (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
 
@@ -33,6 +33,7 @@ reports ``state: error`` with the cause, and the node exits with code 1.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import threading
 import time
@@ -145,7 +146,7 @@ class IdentifierNode(Node):
         self.max_voltage_V = declare_float(self, "max_voltage_V", 0.0, "refuse protocols above this (0: no check)",
                                            0.0, 30000.0)
         self.bag_format = declare_str(self, "rosbag2_format", "auto",
-                                      "bag format: auto (from ROS_DISTRO), humble (Humble and newer read it) "
+                                      "bag format: auto (= humble), humble (Humble and newer read it) "
                                       "or jazzy (Jazzy and newer)")
         self.progress_period_s = declare_float(
             self, "progress_period_s", 0.0, "log a 'progress {json}' line (the ~/status fields, the segment's kind "
@@ -291,8 +292,9 @@ class IdentifierNode(Node):
         if msg.present:
             self.rig_seen["voltage_enabled"] = True
 
-    def on_displacement_seen(self, _msg: Range) -> None:
-        self.rig_seen["displacement"] = True
+    def on_displacement_seen(self, msg: Range) -> None:
+        if math.isfinite(msg.range):  # NaN: a sample laser_sensor_node flagged implausible (REP 117)
+            self.rig_seen["displacement"] = True
 
     def experiment_metadata(self, completed: int, aborted: bool) -> dict:
         return {

@@ -15,22 +15,29 @@ the node reconnects with a back-off.
 
 Every sample passes the plausibility checks of
 :class:`dea_ros.hardware.laser.plausibility.PlausibilityFilter` (inside the measuring range, not
-right after a framing error, within ``max_speed_m_per_s`` of the previous sample). Discarded samples
-and the sensor's error values (no target, too close, ...) are not published; ``/diagnostics``
-counts them per reason (``errors_<reason>``) next to the backend's byte/frame counters
-(``bytes_discarded``, ``partial_frames_dropped``, ``samples_lost_estimate``, ...).
+right after a framing error, within the speed and acceleration the mass can have: with
+``params_file`` set, the limits are derived from the membrane model up to ``max_voltage_V``
+(:func:`~dea_ros.hardware.laser.plausibility.motion_limits`, margin ``motion_margin``), otherwise
+``max_speed_m_per_s`` alone). A sample the checks discard is published on ``displacement`` with
+``range = NaN`` (REP 117: invalid; consumers skip non-finite ranges) and its decoded value on
+``displacement_implausible`` (Range, same stamp), so nothing recorded is lost and nothing
+fabricated is measured. The sensor's own error values (no target, too close, ...) are not
+published. ``/diagnostics`` counts both per reason (``errors_<reason>``, ``implausible``) next to
+the backend's byte/frame counters (``bytes_discarded``, ``partial_frames_dropped``, ...).
 
 Parameters (all read-only: what a parameter read reports is what runs): ``port`` (e.g.
 /dev/ttyUSB0, or the mock's /tmp/dea_ros_mock_laser), ``baudrate``, ``measuring_rate_hz`` (250,
 500, 1000, 2000), ``measuring_range_m`` (of the head: 0.01 for the ILD1320-10), ``zero_offset_m``
 (the distance reading of the flat membrane: displacement = reading - zero_offset, applied at the
 first connect; -1 keeps the backend's tare; a later ``~/tare`` survives reconnects),
-``max_speed_m_per_s`` and ``jump_tolerance_m`` (plausibility), ``poll_period_s``, ``backend`` (``ild1320``
+``max_speed_m_per_s``, ``jump_tolerance_m``, ``params_file``, ``max_voltage_V``, ``motion_margin``
+(plausibility), ``poll_period_s``, ``backend`` (``ild1320``
 or ``mock``), ``frame_id``. Service ``~/tare``
 (std_srvs/Trigger): zero on the current position (averaging).
 """
 from __future__ import annotations
 
+import math
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
@@ -40,12 +47,16 @@ from std_srvs.srv import Trigger
 
 from ..sim.mock_sensor import MockDisplacementSensor
 from ..hardware.laser.ild1320_protocol import ALLOWED_MEASURING_RATES_HZ, validate_measuring_rate_hz
-from ..hardware.laser.plausibility import DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S
+from ..errors import ParameterError
+from ..hardware.laser.plausibility import (DEFAULT_JUMP_TOLERANCE_M, DEFAULT_MAX_SPEED_M_PER_S, DEFAULT_MOTION_MARGIN,
+                                           motion_limits)
+from ..model import load_parameters
 from ..hardware.laser.ild1320_serial import ILD1320Sensor
 from ..hardware.laser import SensorConfigurationError, SensorDisconnected, SensorError
 from .common import (
     SENSOR_QOS,
     TOPIC_DISPLACEMENT,
+    TOPIC_DISPLACEMENT_IMPLAUSIBLE,
     declare_float,
     declare_int,
     declare_str,
@@ -95,6 +106,13 @@ class LaserSensorNode(Node):
         self.jump_tolerance_m = declare_float(
             self, "jump_tolerance_m", DEFAULT_JUMP_TOLERANCE_M,
             "plausibility: noise allowance added to the speed limit, m", 0.0, 1e-3, **ro)
+        self.max_acceleration_m_per_s2 = self._motion_limits(
+            declare_str(self, "params_file", "", "plausibility: membrane preset or YAML the speed and acceleration "
+                        "limits are derived from ('': max_speed_m_per_s alone)", **ro),
+            declare_float(self, "max_voltage_V", 0.0, "plausibility: largest voltage of the rig, V (0: the "
+                          "membrane's breakdown voltage, above any amplifier limit)", 0.0, 20000.0, **ro),
+            declare_float(self, "motion_margin", DEFAULT_MOTION_MARGIN, "plausibility: factor on the model's limits",
+                          1.0, 100.0, **ro))
         try:
             self.rate_hz = validate_measuring_rate_hz(self.rate_hz)
         except ValueError:
@@ -105,9 +123,11 @@ class LaserSensorNode(Node):
             sensor = self._make_sensor(backend)
         self.sensor = sensor
         self.pub = self.create_publisher(Range, TOPIC_DISPLACEMENT, SENSOR_QOS)
+        self.implausible_pub = self.create_publisher(Range, TOPIC_DISPLACEMENT_IMPLAUSIBLE, SENSOR_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/tare", self.on_tare)
         self.published = 0
+        self.implausible = 0
         self.error_counts: dict[str, int] = {}
         self.disconnects = 0
         self.connect_failures = 0
@@ -122,11 +142,28 @@ class LaserSensorNode(Node):
         self.create_timer(poll, self.on_poll)
         self.create_timer(1.0, self.publish_diagnostics)
 
+    def _motion_limits(self, params_file: str, max_voltage_V: float, margin: float):
+        """Speed limit from the membrane model (overrides ``max_speed_m_per_s``) and the acceleration limit."""
+        if not params_file:
+            return None
+        try:
+            params = load_parameters(params_file)
+            max_voltage_V = max_voltage_V or params.breakdown_voltage_V()
+            limits = motion_limits(params, max_voltage_V, margin)
+        except (ParameterError, FileNotFoundError, ValueError) as exc:
+            raise SystemExit(f"laser_sensor_node: parameters 'params_file'/'max_voltage_V': {exc}") from None
+        self.max_speed_m_per_s = limits.max_speed_m_per_s
+        self.get_logger().info(
+            f"plausibility limits from {params_file} up to {max_voltage_V:g} V (margin {margin:g}): "
+            f"{limits.max_speed_m_per_s:.3g} m/s, {limits.max_acceleration_m_per_s2:.3g} m/s^2")
+        return limits.max_acceleration_m_per_s2
+
     def _make_sensor(self, backend: str):
         if backend == "ild1320":
             return ILD1320Sensor(self.port, baudrate=self.baudrate, measuring_rate_hz=self.rate_hz,
                                  measuring_range_m=self.range_m, max_speed_m_per_s=self.max_speed_m_per_s,
-                                 jump_tolerance_m=self.jump_tolerance_m)
+                                 jump_tolerance_m=self.jump_tolerance_m,
+                                 max_acceleration_m_per_s2=self.max_acceleration_m_per_s2)
         if backend == "mock":
             return MockDisplacementSensor(measuring_rate_hz=self.rate_hz, measuring_range_m=self.range_m)
         raise SystemExit(f"laser_sensor_node: parameter 'backend': ild1320 or mock, got {backend!r}")
@@ -193,13 +230,18 @@ class LaserSensorNode(Node):
             return
         offset_s = self.update_time_offset()
         for reading in batch:
+            t_ns = int(round((reading.acquisition_time_s + offset_s) * 1e9))
             if reading.is_valid:
-                t_ns = int(round((reading.acquisition_time_s + offset_s) * 1e9))
                 self.pub.publish(make_range(reading.value, t_ns, self.frame_id, -self.range_m, self.range_m))
                 self.published += 1
-            else:
-                key = reading.error.value
-                self.error_counts[key] = self.error_counts.get(key, 0) + 1
+                continue
+            key = reading.error.value
+            self.error_counts[key] = self.error_counts.get(key, 0) + 1
+            if math.isfinite(reading.raw_m):  # decoded, then flagged: invalid here, the value kept apart
+                self.pub.publish(make_range(math.nan, t_ns, self.frame_id, -self.range_m, self.range_m))
+                self.implausible_pub.publish(make_range(reading.raw_m, t_ns, self.frame_id, -self.range_m,
+                                                        self.range_m))
+                self.implausible += 1
 
     def update_time_offset(self) -> float:
         """ROS time minus time.monotonic() (s), measured once per batch, filtered.
@@ -253,7 +295,10 @@ class LaserSensorNode(Node):
                         else f"{found.measuring_range_m * 1e3:g}"),
                        ("reset_on_connect", "; ".join(report.to_reset) or "nothing")]
             values += [(f"mismatch_{i}", text) for i, text in enumerate(report.mismatches)]
-        values += [("published", self.published), ("disconnects", self.disconnects),
+        values += [("published", self.published), ("implausible", self.implausible),
+                   ("max_speed_m_per_s", f"{self.max_speed_m_per_s:.4g}"),
+                   ("max_acceleration_m_per_s2", "none" if self.max_acceleration_m_per_s2 is None
+                    else f"{self.max_acceleration_m_per_s2:.4g}"), ("disconnects", self.disconnects),
                    ("connect_failures", self.connect_failures)]
         values += [(f"errors_{k}", v) for k, v in sorted(self.error_counts.items())]
         try:

@@ -33,6 +33,7 @@ def recorded(tmp_path_factory):
     resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="linear"), duration, t_eval=td)
     rng = np.random.default_rng(3)
     d = resp.displacement_m + rng.normal(0, 1e-6, td.size)
+    d[::97] = np.nan  # samples laser_sensor_node flagged implausible (REP 117 invalid): skipped
     path = tmp_path_factory.mktemp("bags") / "run"
     with BagWriter(path) as bag:
         bag.add_topic("/dea/voltage", "sensor_msgs/msg/BatteryState", sensor_data_qos(50))
@@ -68,7 +69,8 @@ def test_experiments_are_cut_from_the_bag(recorded):
     step_seg = next(s for s in segs if s.kind == "step")
     assert step.final_V == pytest.approx(2200) and step.initial_V == 0
     # windows end 10 ms before the boundary (the identifier commands one period ahead)
-    assert step.n_samples == pytest.approx((step_seg.end_s - step_seg.start_s - 0.01) * 1000, abs=5)
+    # every 97th sample is NaN (flagged) and skipped
+    assert step.n_samples == pytest.approx((step_seg.end_s - step_seg.start_s - 0.01) * 1000 * 96 / 97, abs=5)
     sines = exp.sines[0]
     freqs = [s.info["frequency_Hz"] for s in segs if s.kind == "sine"]
     assert list(sines.frequency_Hz) == freqs

@@ -89,16 +89,38 @@ def _read_everywhere(bag, count, fields_equal=None, schedule=None):
                 seen[channel.topic] = index + 1
 
 
-@pytest.mark.parametrize("distro, fmt", [("humble", "humble"), ("iron", "humble"), ("jazzy", "jazzy"),
-                                         ("kilted", "jazzy"), ("rolling", "jazzy"), ("", "jazzy")])
-def test_format_follows_ros_distro(monkeypatch, distro, fmt):
-    monkeypatch.setenv("ROS_DISTRO", distro)
-    assert default_rosbag2_format() == fmt
-    assert resolve_rosbag2_format(None) == resolve_rosbag2_format("auto") == fmt
-    monkeypatch.delenv("ROS_DISTRO")
-    assert default_rosbag2_format() == "jazzy"  # PyPI wheels: no ROS_DISTRO
+@pytest.mark.parametrize("distro", ["humble", "iron", "jazzy", "kilted", "rolling", "", None])
+def test_the_default_format_is_the_one_every_distro_reads(monkeypatch, distro):
+    if distro is None:
+        monkeypatch.delenv("ROS_DISTRO", raising=False)  # PyPI wheels: no ROS sourced
+    else:
+        monkeypatch.setenv("ROS_DISTRO", distro)
+    assert default_rosbag2_format() == "humble"
+    assert resolve_rosbag2_format(None) == resolve_rosbag2_format("auto") == "humble"
+    assert resolve_rosbag2_format("jazzy") == "jazzy"  # only when asked for
     with pytest.raises(BagError, match="rosbag2_format='iron' is not supported; use 'jazzy'"):
         resolve_rosbag2_format("iron")
+
+
+@pytest.mark.parametrize("distro", [None, "jazzy"])
+def test_a_bag_recorded_without_ros_sourced_passes_humble_and_jazzy_rules(tmp_path, monkeypatch, topics_spec,
+                                                                          schedule, fields_equal, distro):
+    """Issue 20: the default bag, recorded with no ROS sourced (or on Jazzy), opens on Humble too."""
+    if distro is None:
+        monkeypatch.delenv("ROS_DISTRO", raising=False)
+    else:
+        monkeypatch.setenv("ROS_DISTRO", distro)
+    bag = _write(tmp_path / "n", topics_spec, schedule, custom_data={"operator": "lab"})  # the default format
+    expected = _expected_qos(topics_spec)
+    for reader_distro in ("humble", "jazzy"):
+        info = rules.check_bag(bag, reader_distro)
+        assert info["version"] == 5 and info["message_count"] == len(schedule) + 1
+        _assert_decoded_qos(info["topics"], expected)
+        _assert_decoded_qos(info["mcap"]["n_0.mcap"]["topics"], expected)
+    assert rules.check_mcap(bag / "n_0.mcap", "jazzy")["ros_distro"] == (distro or "humble")
+    _read_everywhere(bag, len(schedule) + 1, fields_equal, schedule)
+    # nothing lost: converted to the Jazzy format, custom_data is back in metadata.yaml
+    assert rules.check_bag(convert_bag(bag, "jazzy"), "jazzy")["custom_data"] == {"operator": "lab"}
 
 
 def test_humble_bag_passes_humble_and_jazzy_rules(tmp_path, monkeypatch, topics_spec, schedule, fields_equal):
@@ -123,7 +145,7 @@ def test_jazzy_bag_passes_jazzy_rules_and_names_its_distro(tmp_path, monkeypatch
         monkeypatch.delenv("ROS_DISTRO", raising=False)
     else:
         monkeypatch.setenv("ROS_DISTRO", ros_distro)
-    bag = _write(tmp_path / "j", topics_spec, schedule, custom_data={"operator": "lab"})
+    bag = _write(tmp_path / "j", topics_spec, schedule, custom_data={"operator": "lab"}, rosbag2_format="jazzy")
     info = rules.check_bag(bag, "jazzy")
     assert info["version"] == 9 and info["ros_distro"] == recorded  # never empty
     assert info["custom_data"] == {"operator": "lab"}

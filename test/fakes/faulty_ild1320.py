@@ -65,6 +65,7 @@ class FaultyILD1320Emulator(ILD1320Emulator):
         self._reported_model: str | None = None
         self._ignored_commands: frozenset[str] = frozenset()
         self._reply_overrides: dict[str, bytes] = {}
+        self._reply_prefix: bytes | None = None
         self._drop_byte_probability = 0.0
         self._random_byte_probability = 0.0
         self._pause_windows: list[tuple[float, float]] = []
@@ -136,6 +137,27 @@ class FaultyILD1320Emulator(ILD1320Emulator):
             self._garbage_requests.append(-n if raw else n)
         self._wake()
 
+    def stream_unread_for(self, seconds: float) -> None:
+        """As if nobody had read the port for ``seconds`` (on the emulator's clock, no sleep).
+
+        The samples of those seconds fall due at the next batch and go through the bounded
+        output buffer, which drops the oldest bytes -- mid-frame, 65536 not being a multiple of
+        3 -- exactly as when the emulator streams unread in real time.
+        """
+        duration = float(seconds)
+        if not (math.isfinite(duration) and duration >= 0.0):
+            raise ValueError(f"seconds must be >= 0, got {seconds!r}")
+        with self._lock:
+            self._max_catch_up_s = max(self._max_catch_up_s, duration + 1.0)
+            self._segment_t0 -= duration
+        self._wake()
+
+    def partial_frame_before_replies(self, tail: bytes | None = b"\xbf") -> None:
+        """Send ``tail`` (the last bytes of a frame: an orphan H byte by default, what a trimmed
+        buffer leaves) just before every reply; ``None`` stops it."""
+        with self._lock:
+            self._reply_prefix = None if tail is None else bytes(tail)
+
     def corrupt_next(self, n_frames: int) -> None:
         """Corrupt the next ``n_frames`` frames (a flag bit flipped or a byte lost)."""
         n = int(n_frames)
@@ -177,17 +199,18 @@ class FaultyILD1320Emulator(ILD1320Emulator):
             override = self._reply_overrides.get(name)
             ignored = name in self._ignored_commands and bool(params)
             rate_text, range_mm, model = self._reported_rate_khz, self._reported_range_mm, self._reported_model
+        prefix = self._reply_prefix or b""
         if override is not None:
-            return override
+            return prefix + override
         if ignored:
-            return render_reply()  # acknowledged, not applied
+            return prefix + render_reply()  # acknowledged, not applied
         if name == "MEASRATE" and not params and rate_text is not None:
-            return render_reply([f"MEASRATE {rate_text}"])
+            return prefix + render_reply([f"MEASRATE {rate_text}"])
         if name == "GETINFO" and not params and (range_mm is not None or model is not None):
-            return render_reply(self._info_lines(
+            return prefix + render_reply(self._info_lines(
                 self._model_name if model is None else model,
                 self._range_m * 1e3 if range_mm is None else range_mm))
-        return super()._reply(name, params, now)
+        return prefix + super()._reply(name, params, now)
 
     def _send(self, data: bytes) -> None:
         if data:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import random
 
+import numpy as np
 import pytest
 
 from dea_ros.hardware.laser.ild1320_protocol import (
@@ -271,3 +272,59 @@ def test_fuzz_error_codes_and_reserve_values_in_the_stream_are_never_valid():
     assert len(results) == len(codes)
     assert all(isinstance(v, MeasurementError) for _, v in results)
     assert f.discarded[MeasurementError.OUTSIDE_MEASURING_RANGE] > 1000
+
+
+# ------------------------------------------------------------------ issue 20: limits from the model, fuzz
+def _unlike_presets():
+    """A membrane unlike the presets: heavier, less damped, another hyperelastic law (A1's, softer)."""
+    import dataclasses
+
+    from dea_ros.model import preset
+    return dataclasses.replace(preset("A1"), name="heavy-soft", mass_kg=0.005, eta2_Pa_s=6000.0,
+                               beta_Pa=tuple(0.7 * b for b in preset("A1").beta_Pa))
+
+
+@pytest.mark.parametrize("name", ["A2", "LP1", "unlike"])
+def test_motion_limits_bound_the_forward_integrated_motion_without_the_margin(name):
+    from dea_ros.model import preset
+    from dea_ros.hardware.laser.plausibility import motion_limits
+    from dea_ros.solvers.inputs import SineVoltage, StepVoltage
+    from dea_ros.solvers.integrate import simulate
+
+    params = _unlike_presets() if name == "unlike" else preset(name)
+    u_max = 0.9 * params.breakdown_voltage_V()
+    raw = motion_limits(params, u_max, margin=1.0)
+    assert motion_limits(params, u_max).max_speed_m_per_s == pytest.approx(2.0 * raw.max_speed_m_per_s)
+    v_seen = a_seen = 0.0
+    for signal, t_end in ((StepVoltage(u_max, 0.05), 1.0), (StepVoltage(0.0, 0.05, initial_V=u_max), 1.0),
+                          (SineVoltage(0.5 * u_max, 9.0, offset_V=0.5 * u_max), 2.0)):
+        r = simulate(params, signal, t_end, sample_rate_Hz=20000.0)
+        v = r.state[2]
+        v_seen = max(v_seen, float(np.max(np.abs(v))))
+        a_seen = max(a_seen, float(np.max(np.abs(np.diff(v)))) * 20000.0)
+    assert 0.0 < v_seen <= raw.max_speed_m_per_s, (v_seen, raw)
+    # the damping term (eq. 12), left out of the grid, can brake harder than the grid's largest
+    # acceleration: the margin covers it (measured: up to 1.3 x the raw bound)
+    print(f"{name}: speed {v_seen:.3g} of {raw.max_speed_m_per_s:.3g} m/s, "
+          f"acceleration {a_seen:.3g} of {raw.max_acceleration_m_per_s2:.3g} m/s^2 (raw bounds)")
+    assert 0.0 < a_seen <= raw.margin * 1.5 * raw.max_acceleration_m_per_s2, (a_seen, raw)
+    assert a_seen <= motion_limits(params, u_max).max_acceleration_m_per_s2
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_no_fabricated_jump_of_a_corrupted_stream_reaches_a_consumer(seed):
+    from dea_ros.model import preset
+    from dea_ros.hardware.laser.plausibility import motion_limits
+    from dea_ros.solvers.inputs import SineVoltage
+    from dea_ros.solvers.integrate import simulate
+    from fakes import load_fake
+
+    fuzz_stream = load_fake("stream_fuzz").fuzz_stream
+    params = preset("A2")
+    limits = motion_limits(params, params.breakdown_voltage_V())
+    r = simulate(params, SineVoltage(1200.0, 8.0 + seed, offset_V=1500.0), 3.0, sample_rate_Hz=2000.0)
+    result = fuzz_stream(r.displacement_m + 0.004, 2000.0, seed, max_speed_m_per_s=limits.max_speed_m_per_s,
+                         max_acceleration_m_per_s2=limits.max_acceleration_m_per_s2)
+    assert result.decoded_max_jump_m > 1e-3  # the corruption fabricates millimetre jumps ...
+    assert result.fabricated_jumps == 0, result  # ... none passes the filter
+    assert result.accepted > 0.8 * result.frames

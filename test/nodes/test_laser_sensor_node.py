@@ -82,7 +82,9 @@ class Peer:
         self.node = Node("peer", context=ctx)
         self.ranges = []
         self.statuses = []
+        self.implausible = []
         self.node.create_subscription(Range, "displacement", self.ranges.append, DEEP_QOS)
+        self.node.create_subscription(Range, "displacement_implausible", self.implausible.append, DEEP_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 100)
 
     def _on_diag(self, msg):
@@ -147,7 +149,7 @@ def test_serial_path_delivers_the_mock_membrane_at_2kHz(ros_context, spin_until,
     assert laser.connected
     # judge the samples acquired in [t0, t1] by their stamps, all of them taken
     drain(ex, got, (laser, mock))
-    window = [m for m in got if t0 <= stamp_to_s(m.header.stamp) <= t1]
+    window = [m for m in got if t0 <= stamp_to_s(m.header.stamp) <= t1 and math.isfinite(m.range)]
     # every published message reaches the subscriber (the real-time rate is measured in bench/,
     # a loaded test machine cannot promise it; here only that the stream flows)
     lost_before_match = laser.published - len(got)
@@ -177,7 +179,7 @@ def test_serial_path_delivers_the_mock_membrane_at_2kHz(ros_context, spin_until,
     published_at_tare = laser.published
     assert spin_until(ex, lambda: laser.published > published_at_tare + 2000, 60.0)
     drain(ex, got, (laser, mock))
-    after = [m.range for m in got[-500:]]
+    after = [m.range for m in got[-500:] if math.isfinite(m.range)]
     assert abs(np.mean(after)) < 1e-6
     assert abs(np.mean(after) + laser.sensor.tare_offset_m - 2e-3 - rest) < 0.5e-6
     # a reconnect keeps the tare made by the service (zero_offset_m applies at the first connect)
@@ -208,7 +210,10 @@ def test_node_survives_bad_replies_and_streams_once_the_sensor_behaves(rig, spin
     emu.misbehave(reply_overrides=None)
     assert spin_until_count(ex, peer.ranges, 200)  # reconnects within the back-off (<= 5 s)
     assert node.connected
-    assert max(abs(m.range - 0.004) for m in peer.ranges) <= 0.5 * Q + 1e-12
+    assert max(abs(m.range - 0.004) for m in peer.ranges if math.isfinite(m.range)) <= 0.5 * Q + 1e-12
+    # only the first samples of a connect wait for confirmation (published as NaN: invalid)
+    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * (node.disconnects + 1), node.error_counts
+    assert set(node.error_counts) <= {"unconfirmed", "after_framing_error"}, node.error_counts
 
 
 def test_node_refuses_a_sensor_that_differs_from_its_parameters(rig, spin_until):
@@ -246,7 +251,10 @@ def test_node_resets_a_mastered_sensor_and_publishes_the_truth(rig):
     skipped_at_connect = node.sensor.decoder.additional_values_skipped
     # read as mastered, the 4 mm target would be 6 mm (4 - 3 + 5); reset: the truth
     assert spin_until_count(ex, peer.ranges, 200)
-    assert max(abs(m.range - 0.004) for m in peer.ranges) <= 0.5 * Q + 1e-12
+    assert max(abs(m.range - 0.004) for m in peer.ranges if math.isfinite(m.range)) <= 0.5 * Q + 1e-12
+    # only the first samples of a connect wait for confirmation (published as NaN: invalid)
+    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * (node.disconnects + 1), node.error_counts
+    assert set(node.error_counts) <= {"unconfirmed", "after_framing_error"}, node.error_counts
     assert node.sensor.decoder.additional_values_skipped == skipped_at_connect  # no counter values any more
 
 
@@ -257,8 +265,9 @@ def test_node_diagnostics_count_discarded_samples_and_publish_only_plausible_val
         return 0.004 + 0.0005 * math.sin(2.0 * math.pi * 2.0 * t)
 
     emu = start_emulator(truth, seed=5)
-    node = make_node()
+    node = make_node(params_file="A2")  # limits from the model (config/laser_sensor.yaml)
     assert node.connected, node.last_error
+    assert node.max_acceleration_m_per_s2 is not None and node.max_speed_m_per_s < DEFAULT_MAX_SPEED_M_PER_S
     wait_matched(ex, node)
     spin_for(ex, 0.1)
     emu.misbehave(random_byte_probability=0.01, drop_byte_probability=0.01)
@@ -270,11 +279,18 @@ def test_node_diagnostics_count_discarded_samples_and_publish_only_plausible_val
     assert spin_until_count(ex, peer.statuses, n_diag)  # a report published after the corruption
     emu.misbehave(random_byte_probability=None, drop_byte_probability=None)
     assert spin_until_count(ex, peer.ranges, 500), (node.last_error, node.published, len(peer.ranges))
-    # every published value is within the speed-limit allowance of the true signal's span
-    allowance = DEFAULT_MAX_SPEED_M_PER_S * 2e-3 + DEFAULT_JUMP_TOLERANCE_M
-    values = [m.range for m in peer.ranges]
+    drain(ex, peer.ranges, [node])
+    # every finite value is within the speed-limit allowance of the true signal's span; the flagged
+    # ones are NaN (REP 117 invalid), each with its decoded value on displacement_implausible
+    allowance = node.max_speed_m_per_s * 2e-3 + DEFAULT_JUMP_TOLERANCE_M
+    values = [m.range for m in peer.ranges if math.isfinite(m.range)]
     assert 0.0035 - allowance <= min(values) and max(values) <= 0.0045 + allowance
+    flagged = [m for m in peer.ranges if math.isnan(m.range)]
+    assert len(flagged) > 10 and len(peer.implausible) == len(flagged) == node.implausible
+    assert [stamp_to_s(m.header.stamp) for m in flagged] == [stamp_to_s(m.header.stamp) for m in peer.implausible]
+    assert all(math.isfinite(m.range) for m in peer.implausible)
     values = peer.last_values()
+    assert int(values["implausible"]) > 0
     assert int(values["errors_after_framing_error"]) > 10
     assert int(values["bytes_discarded"]) > 1000 and int(values["partial_frames_dropped"]) > 0
     assert int(values["published"]) > 500

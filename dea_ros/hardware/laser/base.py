@@ -39,6 +39,7 @@ __all__ = [
     "DisplacementSensor",
     "validated_tare_offset_m",
     "validated_measuring_range_m",
+    "validated_positive",
 ]
 
 
@@ -74,6 +75,9 @@ class MeasurementError(str, enum.Enum):
     #: A distance the measured mass cannot have reached from the previous accepted
     #: sample in the time between them (speed limit): a corrupted frame.
     IMPLAUSIBLE_JUMP = "implausible_jump"
+    #: A distance off the trend of the previous accepted samples by more than the
+    #: mass's largest acceleration allows (acceleration limit): a corrupted frame.
+    IMPLAUSIBLE_ACCELERATION = "implausible_acceleration"
     #: The first frame after bytes were lost or corrupted (framing error): it may
     #: be made of random bytes that happen to carry valid flag bits.
     AFTER_FRAMING_ERROR = "after_framing_error"
@@ -88,11 +92,14 @@ class DisplacementReading(NamedTuple):
     ``acquisition_time_s`` is on the backend's monotonic clock
     (``time.monotonic()`` for the serial and mock backends). ``value`` is the
     displacement in metres with the tare offset subtracted, or a
-    :class:`MeasurementError`.
+    :class:`MeasurementError`. ``raw_m``: for a sample the plausibility checks
+    discarded, the displacement it decoded to (tare subtracted; NaN otherwise), so
+    that it can be recorded apart without being taken for a measurement.
     """
 
     acquisition_time_s: float
     value: float | MeasurementError
+    raw_m: float = math.nan
 
     @property
     def is_valid(self) -> bool:
@@ -108,6 +115,14 @@ class DisplacementReading(NamedTuple):
     def error(self) -> MeasurementError | None:
         """The error of an error sample, or ``None`` for a valid one."""
         return self.value if isinstance(self.value, MeasurementError) else None
+
+
+def validated_positive(name: str, value: float) -> float:
+    """``value`` as a positive finite float; ``ValueError`` naming the setting otherwise."""
+    number = float(value)
+    if not (math.isfinite(number) and number > 0.0):
+        raise ValueError(f"{name} must be positive, got {value!r}")
+    return number
 
 
 def validated_measuring_range_m(measuring_range_m: float) -> float:

@@ -6,54 +6,33 @@ for the optoNCDT 1320 on an RS422/USB adapter (or on the pty of
 are in :mod:`dea_ros.hardware.laser.ild1320_protocol`. pyserial is imported with this
 module: its users import it when a serial sensor is used.
 
-Reading
--------
-All bytes waiting in the OS buffer are read at every :meth:`~ILD1320Sensor.read_batch`
-(and while waiting for command replies), decoded by a
-:class:`~dea_ros.hardware.laser.ild1320_protocol.frames.FrameDecoder` that also separates the
-interleaved ASCII replies, time-stamped by a
-:class:`~dea_ros.hardware.laser.sample_clock.SampleClock` (the sensor sends no time stamps:
-they are reconstructed from the measuring rate and the arrival times of the chunks), and
-queued; ``read_batch`` returns the oldest ``max_samples`` of the queue with the tare offset
-subtracted.
+Reading: all bytes waiting are read at every :meth:`~ILD1320Sensor.read_batch` (and while waiting
+for replies), decoded by a :class:`~dea_ros.hardware.laser.ild1320_protocol.frames.FrameDecoder`
+(which also keeps the interleaved ASCII replies), stamped by a
+:class:`~dea_ros.hardware.laser.sample_clock.SampleClock` (the sensor sends no time stamps),
+checked by a :class:`~dea_ros.hardware.laser.plausibility.PlausibilityFilter` (the frame has no
+checksum; a discarded sample is returned as a reading whose value is the reason) and queued.
 
-Connecting: a known state, checked against the configuration
--------------------------------------------------------------
-:meth:`ILD1320Sensor.open` first reads what the sensor reports (``GETINFO``,
-``MEASRATE``, ``OUTPUT``, ``OUTADD_RS422``, ``OUTHOLD``, ``MASTERMV``) and compares
-it with the configuration (:func:`~dea_ros.hardware.laser.ild1320_protocol.settings.check_laser_sensor`):
-another model, another measuring range than ``measuring_range_m`` or a rate that
-is not an ILD1320 rate raise :class:`~dea_ros.errors.SensorConfigurationError`
-(the report is :attr:`ILD1320Sensor.connect_report`). Otherwise it puts the
-sensor into the known state (``OUTPUT RS422``, ``OUTADD_RS422 NONE``, ``OUTHOLD
-NONE``, ``MASTERMV NONE``, ``MEASRATE``) and reads every setting back; samples
-received while configuring and the ``OUTPUT_DELAY_CYCLES`` + 1 samples after
-it (acquired under the old settings) are dropped. :func:`describe_ild1320` reads
-and checks without changing anything (for a rig check before any voltage).
+Connecting (:meth:`ILD1320Sensor.open`): resynchronise (flush, stop the stream, read until a
+complete reply and a quiet line, within ``resync_timeout_s``: a sensor streams from power-on and
+the port may hold partial frames), read what the sensor reports (``GETINFO``, ``MEASRATE``,
+``OUTPUT``, ``OUTADD_RS422``, ``OUTHOLD``, ``MASTERMV``) and compare it with the configuration
+(:func:`~dea_ros.hardware.laser.ild1320_protocol.settings.check_laser_sensor`; another model,
+range or a non-ILD1320 rate raise :class:`~dea_ros.errors.SensorConfigurationError`), set the
+known state (``OUTADD_RS422 NONE``, ``OUTHOLD NONE``, ``MASTERMV NONE``, ``MEASRATE``, then
+``OUTPUT RS422``) and read every setting back; the ``OUTPUT_DELAY_CYCLES`` + 1 samples after it
+are dropped. :func:`describe_ild1320` reads and checks, and leaves the sensor as it was.
 
-Plausibility
-------------
-Every decoded sample passes a
-:class:`~dea_ros.hardware.laser.plausibility.PlausibilityFilter`; a discarded
-sample is returned by :meth:`~ILD1320Sensor.read_batch` as a reading whose
-value is the reason (``MeasurementError.IMPLAUSIBLE_JUMP``, ...), so consumers
-count discards per reason; byte-level counters are in
-:meth:`~ILD1320Sensor.diagnostic_counters`. Note: ASCII replies are non-frame
-bytes too, so the frame after a reply to a command sent while streaming is
-discarded as ``AFTER_FRAMING_ERROR``.
-
-Disconnects
------------
-A serial exception (port vanished, EIO) closes the port and raises
-:class:`~dea_ros.errors.SensorDisconnected`; so does silence: no valid
-frame for ``no_data_timeout_periods`` sample periods (at least
-``min_no_data_timeout_s``). After silence the backend recovers by itself when
-frames arrive again; after a serial error call :meth:`ILD1320Sensor.reconnect`
-(retries with exponential backoff).
+Disconnects: a serial exception closes the port and raises
+:class:`~dea_ros.errors.SensorDisconnected`; so does silence (no valid frame for
+``no_data_timeout_periods`` sample periods, at least ``min_no_data_timeout_s``), from which the
+backend recovers by itself when frames arrive again; after a serial error call
+:meth:`ILD1320Sensor.reconnect` (retries with exponential backoff).
 """
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import select
 import time
@@ -61,8 +40,9 @@ from typing import Any, Callable
 
 import serial
 
-from ...errors import SensorConfigurationError, SensorDisconnected, SensorError
-from .base import DisplacementReading, DisplacementSensor, MeasurementError, validated_tare_offset_m
+from ...errors import CommandError, SensorConfigurationError, SensorDisconnected, SensorError
+from .base import (DisplacementReading, DisplacementSensor, MeasurementError, validated_positive,
+                   validated_tare_offset_m)
 from .ild1320_protocol.commands import (
     CommandReply,
     SensorInfo,
@@ -130,10 +110,12 @@ class ILD1320Sensor(DisplacementSensor):
     * ``measuring_rate_hz``: rate to set on every :meth:`open` (``None``: keep the sensor's
       setting, which must be an ILD1320 rate); read back and checked;
     * ``enable_rs422_output``: send ``OUTPUT RS422`` on :meth:`open` so that values are streamed;
-    * ``max_speed_m_per_s``, ``jump_tolerance_m``, ``confirm_samples``: plausibility limits of
-      :class:`PlausibilityFilter`;
+    * ``max_speed_m_per_s``, ``jump_tolerance_m``, ``confirm_samples``, ``max_acceleration_m_per_s2``:
+      of :class:`PlausibilityFilter` (a discarded sample's decoded value is the reading's ``raw_m``);
     * ``no_data_timeout_periods``, ``min_no_data_timeout_s``: silence longer than
       ``max(periods / rate, min)`` means disconnected;
+    * ``resync_timeout_s``: bound of the resynchronisation at every :meth:`open` (see
+      :meth:`_resynchronise`);
     * ``serial_factory``: replaces ``serial.Serial`` (keyword arguments as pyserial's).
     """
 
@@ -153,29 +135,21 @@ class ILD1320Sensor(DisplacementSensor):
         max_speed_m_per_s: float = DEFAULT_MAX_SPEED_M_PER_S,
         jump_tolerance_m: float = DEFAULT_JUMP_TOLERANCE_M,
         confirm_samples: int = DEFAULT_CONFIRM_SAMPLES,
+        resync_timeout_s: float = 3.0,
+        max_acceleration_m_per_s2: float | None = None,
     ) -> None:
         self._port = str(port)
-        self._baudrate = int(baudrate)
-        if self._baudrate <= 0:
-            raise ValueError(f"baudrate must be positive, got {baudrate!r}")
-        self._timeout_s = float(timeout_s)
-        if not (math.isfinite(self._timeout_s) and self._timeout_s > 0.0):
-            raise ValueError(f"timeout_s must be positive, got {timeout_s!r}")
-        if measuring_range_m is not None and not (
-            math.isfinite(float(measuring_range_m)) and float(measuring_range_m) > 0.0
-        ):
-            raise ValueError(f"measuring_range_m must be a positive number of metres, got {measuring_range_m!r}")
-        self._range_override_m = None if measuring_range_m is None else float(measuring_range_m)
-        self._requested_rate_hz = (
-            None if measuring_rate_hz is None else validate_measuring_rate_hz(measuring_rate_hz)
-        )
+        self._baudrate = int(validated_positive("baudrate", baudrate))
+        self._timeout_s = validated_positive("timeout_s", timeout_s)
+        self._resync_timeout_s = validated_positive("resync_timeout_s", resync_timeout_s)
+        self._range_override_m = (None if measuring_range_m is None
+                                  else validated_positive("measuring_range_m", measuring_range_m))
+        self._requested_rate_hz = None if measuring_rate_hz is None else validate_measuring_rate_hz(measuring_rate_hz)
         self._enable_output = bool(enable_rs422_output)
-        if int(no_data_timeout_periods) < 1:
-            raise ValueError(f"no_data_timeout_periods must be >= 1, got {no_data_timeout_periods!r}")
         self._no_data_periods = int(no_data_timeout_periods)
-        self._min_no_data_s = float(min_no_data_timeout_s)
-        if not (math.isfinite(self._min_no_data_s) and self._min_no_data_s > 0.0):
-            raise ValueError(f"min_no_data_timeout_s must be positive, got {min_no_data_timeout_s!r}")
+        if self._no_data_periods < 1:
+            raise ValueError(f"no_data_timeout_periods must be >= 1, got {no_data_timeout_periods!r}")
+        self._min_no_data_s = validated_positive("min_no_data_timeout_s", min_no_data_timeout_s)
         self._serial_factory = serial_factory or serial.Serial
 
         self._serial: Any | None = None
@@ -190,12 +164,11 @@ class ILD1320Sensor(DisplacementSensor):
             self._decoder.measuring_range_m,
             max_speed_m_per_s=max_speed_m_per_s,
             jump_tolerance_m=jump_tolerance_m,
-            confirm_samples=confirm_samples,
-        )
+            confirm_samples=confirm_samples, max_acceleration_m_per_s2=max_acceleration_m_per_s2)
         self._configuring = False
         self._settle_remaining = 0
         self._connect_report: LaserSensorReport | None = None
-        self._queue: collections.deque[tuple[float, float | MeasurementError]] = collections.deque()
+        self._queue: collections.deque[tuple[float, float | MeasurementError, float]] = collections.deque()
         self._max_queued = int(max_queued_samples)
         if self._max_queued < 1:
             raise ValueError(f"max_queued_samples must be >= 1, got {max_queued_samples!r}")
@@ -298,8 +271,8 @@ class ILD1320Sensor(DisplacementSensor):
         self._open_port()
         self._configuring = True
         try:
-            self._serial.reset_input_buffer()
-            settings = self.read_settings()
+            output = self._resynchronise()
+            settings = dataclasses.replace(self.read_settings(), output=output)
             report = check_laser_sensor(settings, self._expectation())
             self._connect_report = report
             if not report.ok:
@@ -323,10 +296,47 @@ class ILD1320Sensor(DisplacementSensor):
         self._filter.reset()
         self._settle_remaining = OUTPUT_DELAY_CYCLES + 1
 
+    def _resynchronise(self) -> str | None:
+        """Flush, stop the stream, drop bytes until quiet: the output channel it had (``None``: unreadable).
+
+        ``OUTPUT NONE`` is repeated until a complete reply acknowledges it (replies resynchronise
+        on their start: ``commands.resync_first_line``), all within ``resync_timeout_s``.
+        """
+        self._serial.reset_input_buffer()
+        deadline = time.monotonic() + self._resync_timeout_s
+        output = self._ask(output_command(None), parse_output_reply, deadline, required=False)
+        self._ask(output_command("NONE"), lambda reply: reply, deadline)
+        quiet_s = max(4.0 / self._rate_hz, 0.02)
+        while time.monotonic() < deadline:
+            self._wait_readable(quiet_s)
+            if not self._serial.read(_READ_CHUNK_BYTES):
+                break
+        self._decoder.reset()
+        self._clock.reset(self._rate_hz, self._latency_s(self._rate_hz))  # the backlog's stamps mean nothing
+        return output
+
+    def _ask(self, command: str, parse: Callable[[CommandReply], Any], deadline: float,
+             required: bool = True) -> Any:
+        """``parse`` of the reply to ``command``, repeated until it parses or ``deadline`` (monotonic s);
+        not repeated when refused (``Exxx``); ``required=False``: ``None`` then (silence raises)."""
+        while True:
+            try:
+                return parse(self._command(command))
+            except CommandError:
+                if required:
+                    raise
+                return None
+            except SensorError:
+                if time.monotonic() < deadline:
+                    continue
+                if required:
+                    raise
+                return None
+
     def _query(self, command: str, parse: Callable[[CommandReply], Any], unreadable: list[str]) -> Any:
         """A query whose failure (refused, unparsable) is recorded, not raised; silence still raises."""
         try:
-            return parse(self._command(command))
+            return self._ask(command, parse, time.monotonic() + self._timeout_s)
         except SensorDisconnected:
             raise
         except SensorError as exc:
@@ -359,13 +369,13 @@ class ILD1320Sensor(DisplacementSensor):
         return check_laser_sensor(self.read_settings(), self._expectation())
 
     def _apply_known_state(self) -> None:
-        if self._enable_output:
-            self._command(output_command("RS422"))
         self._command(outadd_rs422_command(()))
         self._command(outhold_command("NONE"))
         self._command(mastermv_command(reset=True))
         if self._requested_rate_hz is not None:
             self._command(measrate_command(self._requested_rate_hz))
+        if self._enable_output:  # the stream is restarted last: the settings went over a quiet line
+            self._command(output_command("RS422"))
         # read everything back: a sensor that acknowledges and keeps a setting is refused
         problems = []
         rate = self.measuring_rate()  # validated: an unsupported rate raises
@@ -495,6 +505,10 @@ class ILD1320Sensor(DisplacementSensor):
         samples = self._decoder.feed(data)
         if not samples:
             return 0
+        if self._configuring:  # a backlog arrives in a burst: stamping it would run the clock ahead
+            self._last_frame_time = arrival_time_s
+            self.samples_ignored_while_configuring += len(samples)
+            return 0
         times = self._clock.stamp(
             len(samples),
             arrival_time_s,
@@ -504,17 +518,16 @@ class ILD1320Sensor(DisplacementSensor):
         self._last_frame_time = arrival_time_s
         queued = 0
         for t_s, sample in zip(times, samples):
-            if self._configuring or self._settle_remaining > 0:
-                # acquired before / while the known state was set (maybe mastered)
-                if not self._configuring:
-                    self._settle_remaining -= 1
+            if self._settle_remaining > 0:  # acquired while the known state was set (maybe mastered)
+                self._settle_remaining -= 1
                 self.samples_ignored_while_configuring += 1
                 continue
             value = self._filter.check(t_s, sample.value, sample.discarded_before > 0)
             if len(self._queue) >= self._max_queued:
                 self._queue.popleft()
                 self.samples_dropped_queue_full += 1
-            self._queue.append((t_s, value))
+            self._queue.append((t_s, value, sample.value if isinstance(value, MeasurementError)
+                                and not isinstance(sample.value, MeasurementError) else math.nan))
             queued += 1
             if not isinstance(value, MeasurementError):
                 self._recent_valid_m.append(value)
@@ -555,10 +568,9 @@ class ILD1320Sensor(DisplacementSensor):
         tare = self._tare_m
         readings = []
         for _ in range(count):
-            t_s, value = self._queue.popleft()
-            if not isinstance(value, MeasurementError):
-                value = value - tare
-            readings.append(DisplacementReading(t_s, value))
+            t_s, value, raw = self._queue.popleft()
+            readings.append(DisplacementReading(t_s, value if isinstance(value, MeasurementError) else value - tare,
+                                                raw - tare))
         return readings
 
     # ------------------------------------------------------------------ commands
@@ -589,7 +601,7 @@ class ILD1320Sensor(DisplacementSensor):
 
     def info(self) -> SensorInfo:
         """Query ``GETINFO`` (name, serial number, measuring range, ...)."""
-        self._info = parse_getinfo_reply(self._command(getinfo_command()))
+        self._info = self._ask(getinfo_command(), parse_getinfo_reply, time.monotonic() + self._timeout_s)
         return self._info
 
     def measuring_rate(self) -> float:
@@ -676,8 +688,10 @@ def describe_ild1320(
     sensor._open_port()
     sensor._configuring = True
     try:
-        sensor._serial.reset_input_buffer()
-        settings = sensor.read_settings()
+        output = sensor._resynchronise()
+        settings = dataclasses.replace(sensor.read_settings(), output=output)
+        if output not in (None, "NONE"):  # the stream as it was
+            sensor._command(output_command(output))
     except (serial.SerialException, OSError) as exc:
         raise SensorDisconnected(f"I/O error while reading ILD1320 on {port}: {exc}") from exc
     finally:

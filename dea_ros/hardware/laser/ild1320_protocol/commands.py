@@ -56,6 +56,7 @@ __all__ = [
     "outhold_command",
     "find_reply_end",
     "parse_reply",
+    "resync_first_line",
     "render_reply",
     "render_error",
     "parse_getinfo_reply",
@@ -179,6 +180,35 @@ def _normalise(text: str) -> str:
     return " ".join(text.split()).upper()
 
 
+#: Text that can never be part of a reply: bytes >= 0x80 (decoded as U+FFFD), control characters.
+_NOT_REPLY_TEXT = re.compile(r"[^\x20-\x7e\t]")
+#: The first body line of a query's reply where it is not ``<COMMAND> <value>``.
+_QUERY_REPLY_START = {"GETINFO": "Name:"}
+
+
+def resync_first_line(line: str, sent_command: str) -> str:
+    """The first line of a reply without what a stream left before it.
+
+    A reply read from a sensor that was streaming may start with the remains of a frame (the
+    stream does not stop for a reply, and a buffer trimmed while nobody read cuts frames): the
+    line is cut after the last character a reply cannot contain, then at the earliest place a
+    reply to ``sent_command`` can start (its echo, the query's answer ``<NAME> ...`` or
+    ``Name:`` for ``GETINFO``, an error ``Exxx``). A line with none of these is kept as it is
+    (the caller's parser then refuses it and the command is repeated).
+    """
+    bad = [m.end() for m in _NOT_REPLY_TEXT.finditer(line)]
+    if bad:
+        line = line[bad[-1]:]
+    name = str(sent_command).split()[0].upper() if str(sent_command).split() else ""
+    starts = [str(sent_command).strip(), name, _QUERY_REPLY_START.get(name, "")]
+    positions = [line.upper().find(s.upper()) for s in starts if s]
+    error = re.search(r"E\d{2,3}\b", line)
+    if error:
+        positions.append(error.start())
+    found = [p for p in positions if p >= 0]
+    return line[min(found):].strip() if found else line.strip()
+
+
 def parse_reply(raw: bytes, sent_command: str) -> CommandReply:
     """Parse a complete reply (up to and including the prompt) to ``sent_command``.
 
@@ -191,6 +221,9 @@ def parse_reply(raw: bytes, sent_command: str) -> CommandReply:
         text = text[:end]
     lines = [line.strip() for line in re.split(r"\r?\n|\r", text)]
     lines = [line for line in lines if line]
+    if lines:
+        lines[0] = resync_first_line(lines[0], sent_command)
+        lines = [line for line in lines if line]
     if lines and _normalise(lines[0]) == _normalise(sent_command):
         lines = lines[1:]
     body: list[str] = []
