@@ -50,7 +50,8 @@ def generate_launch_description():
         Node(package="dea_ros", executable="laser_sensor_node", name="laser_sensor_node", namespace=ns,
              output="screen",
              parameters=[os.path.join(config, "laser_sensor.yaml"),
-                         {"backend": "ild1320", "port": laser_port, "zero_offset_m": standoff_m}]),
+                         {"backend": "ild1320", "port": laser_port, "zero_offset_m": standoff_m,
+                          "params_file": membrane}]),
         Node(package="dea_ros", executable="model_node", name="model_node", namespace=ns, output="screen",
              parameters=[os.path.join(config, "model.yaml"), {"params_file": membrane}]),
     ])

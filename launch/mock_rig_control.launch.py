@@ -50,7 +50,7 @@ def generate_launch_description():
         Node(package="dea_ros", executable="laser_sensor_node", name="laser_sensor_node", namespace=ns,
              output="screen",
              parameters=[os.path.join(config, "laser_sensor.yaml"),
-                         {"port": "/tmp/dea_ros_mock_laser", "zero_offset_m": 0.002,
+                         {"port": "/tmp/dea_ros_mock_laser", "zero_offset_m": 0.002, "params_file": membrane,
                           "measuring_rate_hz": 1000.0, "poll_period_s": 0.001}]),
         LifecycleNode(package="dea_ros", executable="position_controller_node", name="position_controller_node",
                       namespace=ns, output="screen",

@@ -39,7 +39,7 @@ def generate_launch_description():
         Node(package="dea_ros", executable="laser_sensor_node", name="laser_sensor_node", namespace=ns,
              output="screen",
              parameters=[os.path.join(config, "laser_sensor.yaml"),
-                         {"backend": "ild1320",
+                         {"backend": "ild1320", "params_file": membrane,
                           "port": ParameterValue(LaunchConfiguration("laser_port"), value_type=str)}]),
         Node(package="dea_ros", executable="model_node", name="model_node", namespace=ns, output="screen",
              parameters=[os.path.join(config, "model.yaml"), {"params_file": membrane}]),
