@@ -328,3 +328,25 @@ def test_no_fabricated_jump_of_a_corrupted_stream_reaches_a_consumer(seed):
     assert result.decoded_max_jump_m > 1e-3  # the corruption fabricates millimetre jumps ...
     assert result.fabricated_jumps == 0, result  # ... none passes the filter
     assert result.accepted > 0.8 * result.frames
+
+
+def test_a_bit_flip_off_the_trend_is_flagged_and_does_not_bend_the_trend():
+    """The fuzz's seed-8 case in small: a value 40 um off a smooth 2 kHz motion passed the trend check
+    when its allowance was the 20 um jump tolerance; its false velocity then rejected the true samples
+    and let a value on the false trend through. The trend's own 5 um tolerance flags it."""
+    rate = 2000.0
+    t = np.arange(40) / rate
+    truth = 0.004 + 50e-6 * np.sin(2 * np.pi * 10.0 * t)  # 3 mm/s: real, smooth motion
+    filt = PlausibilityFilter(max_speed_m_per_s=0.353, max_acceleration_m_per_s2=28.0)
+    accepted = {}
+    for k, (tk, dk) in enumerate(zip(t, truth)):
+        if k == 20:
+            dk -= 40e-6                                     # a flipped bit
+        if k == 23:
+            dk -= 320e-6                                    # on the trend the flipped bit would make
+        value = filt.check(float(tk), float(dk))
+        if not isinstance(value, MeasurementError):
+            accepted[k] = value
+    assert 20 not in accepted and 23 not in accepted
+    assert all(k in accepted for k in range(2, 40) if k not in (20, 23))  # the true samples all pass
+    assert filt.trend_tolerance_m == pytest.approx(5e-6)

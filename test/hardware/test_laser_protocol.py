@@ -509,3 +509,10 @@ def test_sample_clock_follows_drift_once_per_window():
     spacings = [b - a for a, b in zip(stamps, stamps[1:])]
     assert sum(abs(s - 0.002) > 1e-12 for s in spacings) == 1  # one correction ...
     assert stamps[-1] == pytest.approx(t + 0.0003, abs=1e-9)  # ... by the smallest delay
+
+
+def test_a_flagged_reading_keeps_its_raw_value_and_is_still_a_pair():
+    flagged = DisplacementReading(3.0, MeasurementError.IMPLAUSIBLE_JUMP, raw_m=0.004)
+    t, value = flagged
+    assert (t, value) == (3.0, MeasurementError.IMPLAUSIBLE_JUMP) and flagged.raw_m == 0.004
+    assert math.isnan(DisplacementReading(1.0, 0.002).raw_m)

@@ -86,20 +86,27 @@ class MeasurementError(str, enum.Enum):
     UNCONFIRMED = "unconfirmed"
 
 
-class DisplacementReading(NamedTuple):
+class _TimedValue(NamedTuple):
+    acquisition_time_s: float
+    value: float | MeasurementError
+
+
+class DisplacementReading(_TimedValue):
     """One time-stamped sample, usable as the pair ``(acquisition_time_s, value)``.
 
     ``acquisition_time_s`` is on the backend's monotonic clock
     (``time.monotonic()`` for the serial and mock backends). ``value`` is the
     displacement in metres with the tare offset subtracted, or a
-    :class:`MeasurementError`. ``raw_m``: for a sample the plausibility checks
-    discarded, the displacement it decoded to (tare subtracted; NaN otherwise), so
-    that it can be recorded apart without being taken for a measurement.
+    :class:`MeasurementError`. ``raw_m`` (an attribute, not part of the pair): for a
+    sample the plausibility checks discarded, the displacement it decoded to (tare
+    subtracted; NaN otherwise), so that it can be recorded apart without being taken
+    for a measurement.
     """
 
-    acquisition_time_s: float
-    value: float | MeasurementError
-    raw_m: float = math.nan
+    def __new__(cls, acquisition_time_s: float, value: float | MeasurementError, raw_m: float = math.nan):
+        reading = super().__new__(cls, acquisition_time_s, value)
+        reading.raw_m = float(raw_m)
+        return reading
 
     @property
     def is_valid(self) -> bool:

@@ -25,10 +25,15 @@ Both are multiplied by ``margin`` (default 2). For A2 at 3150 V: 0.25 m/s and 19
 0.23 m/s, 18.7 m/s^2; LP1: 0.36 m/s, 27.5 m/s^2); the largest |d''| is g, where the membrane is
 nearly flat and carries little of the weight.
 A sample farther from the last accepted one than ``v_max dt + tol`` is an implausible jump;
-farther from the extrapolation ``d_ref + v_ref dt`` than ``a_max dt^2 / 2 + tol (1 + 2 dt /
-dt_ref)`` (the error of extrapolating two noisy samples) an implausible acceleration. At 2 kHz
-(A2) a corrupted value more than ~0.15 mm from the last sample fails the first, one more than
-~0.06 mm off the trend the second. A torn membrane (free fall, outside the model) is refused until the mass
+farther from the extrapolation ``d_ref + v_ref dt`` than ``a_max dt^2 / 2 + tol_trend (1 + 2 dt /
+dt_ref)`` (the error of extrapolating two noisy samples) an implausible acceleration. ``tol`` (20 um)
+covers a step of the target's surface; ``tol_trend`` (5 um) only the sensor's noise and quantisation
+(the ILD1320-10 repeats to 0.5 um, a quantum is 0.16 um; with 1 um of noise the extrapolation error has
+sigma sqrt(6) um, so 15 um at dt = dt_ref is 6 sigma): with the 20 um of ``tol`` there, a bit flipped
+in a frame 40 um off the trend was accepted, its false velocity rejected the true samples after it
+and let a 319 um error through (bench/bench_laser_edges.py, seed 8). At 2 kHz (A2) a corrupted
+value more than ~0.15 mm from the last sample fails the first, one more than ~15 um off the trend
+the second. A torn membrane (free fall, outside the model) is refused until the mass
 is still again, then the chain of consistent samples re-anchors.
 """
 from __future__ import annotations
@@ -47,6 +52,7 @@ from .ild1320_protocol.frames import DEFAULT_MEASURING_RANGE_M
 __all__ = [
     "DEFAULT_MAX_SPEED_M_PER_S",
     "DEFAULT_JUMP_TOLERANCE_M",
+    "DEFAULT_TREND_TOLERANCE_M",
     "DEFAULT_CONFIRM_SAMPLES",
     "DEFAULT_MOTION_MARGIN",
     "MotionLimits",
@@ -60,6 +66,8 @@ __all__ = [
 DEFAULT_MAX_SPEED_M_PER_S = 0.5
 #: Default allowance for sensor noise and quantisation on top of the limits (m).
 DEFAULT_JUMP_TOLERANCE_M = 20e-6
+#: Allowance for sensor noise and quantisation on the extrapolated trend (m), see the module docstring.
+DEFAULT_TREND_TOLERANCE_M = 5e-6
 #: Consecutive consistent samples needed to accept a value without a trusted previous one.
 DEFAULT_CONFIRM_SAMPLES = 3
 #: Factor on the model's bounds of speed and acceleration.
@@ -121,7 +129,8 @@ class PlausibilityFilter:
        can travel in the time between them,
        ``|d - d_ref| > max_speed_m_per_s * (t - t_ref) + jump_tolerance_m``.
     3b. ``IMPLAUSIBLE_ACCELERATION`` (with ``max_acceleration_m_per_s2``): off the trend of
-       the last two accepted samples by more than ``a dt^2 / 2 + tol (1 + 2 dt / dt_ref)``.
+       the last two accepted samples by more than ``a dt^2 / 2 + tol_trend (1 + 2 dt / dt_ref)``
+       (``trend_tolerance_m``).
     4. ``UNCONFIRMED``: without a trusted reference (start of the stream, after
        :meth:`reset`) a value is accepted only as the ``confirm_samples``-th of
        consecutive samples each consistent with its predecessor; the same chain
@@ -143,7 +152,11 @@ class PlausibilityFilter:
         jump_tolerance_m: float = DEFAULT_JUMP_TOLERANCE_M,
         confirm_samples: int = DEFAULT_CONFIRM_SAMPLES,
         max_acceleration_m_per_s2: float | None = None,
+        trend_tolerance_m: float = DEFAULT_TREND_TOLERANCE_M,
     ) -> None:
+        self.trend_tolerance_m = float(trend_tolerance_m)
+        if not (math.isfinite(self.trend_tolerance_m) and self.trend_tolerance_m >= 0.0):
+            raise ValueError(f"trend_tolerance_m must be >= 0 m, got {trend_tolerance_m!r}")
         self.max_acceleration_m_per_s2 = None if max_acceleration_m_per_s2 is None else float(
             max_acceleration_m_per_s2)
         if self.max_acceleration_m_per_s2 is not None and not (
@@ -196,7 +209,7 @@ class PlausibilityFilter:
         if dt > self.STALE_SPACINGS * dt_ref:
             return False
         allowed = 0.5 * self.max_acceleration_m_per_s2 * dt * dt \
-            + self.jump_tolerance_m * (1.0 + 2.0 * dt / dt_ref)
+            + self.trend_tolerance_m * (1.0 + 2.0 * dt / dt_ref)
         return abs(d_m - self._ref[1] - v_ref * dt) <= allowed
 
     def _accept(self, t_s: float, d_m: float) -> None:
