@@ -90,3 +90,16 @@ def test_strain_integrator_matches_converged_integration(unlike):
     got = np.array([strain.step(d_of_t(t), 1e-3) for t in ts])
     ref = sol.sol(ts)[0]
     assert np.max(np.abs(got - ref)) < 1e-3 * np.ptp(ref)
+
+
+def test_strain_integrator_run_is_the_step_over_a_grid(unlike):
+    """The planner's vectorised run() and the loop's per-sample step() are the same exponential step."""
+    inv = ModelInverse(unlike, 2000.0)
+    lo, hi = inv.reachable_range_m
+    d = lo + (hi - lo) * (0.5 + 0.4 * np.sin(2 * np.pi * 3.0 * np.arange(400) * 1e-3))
+    one = StrainIntegrator(inv, d[0], 0.01)
+    stepped = [one.eps1] + [one.step(x, 1e-3) for x in d[1:]]
+    other = StrainIntegrator(inv, d[0], 0.01)
+    ran = other.run(d, 1e-3)
+    np.testing.assert_allclose(ran, stepped, rtol=1e-12, atol=1e-15)
+    assert other.eps1 == pytest.approx(one.eps1, rel=1e-12) and other.d == one.d
