@@ -21,22 +21,25 @@ Arguments: those of mock_rig_control.launch.py and ``controller_delay_s``.
 """
 import os
 
-import xacro
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, IncludeLaunchDescription, TimerAction
 from launch.launch_description_sources import PythonLaunchDescriptionSource
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import Command, EnvironmentVariable, FindExecutable, LaunchConfiguration
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 NAMESPACE = "dea"
 
 
 def generate_launch_description():
     share = get_package_share_directory("dea_ros")
-    description = xacro.process_file(
-        os.path.join(share, "urdf", "dea_rig.ros2_control.xacro"),
-        mappings={"distro": os.environ.get("ROS_DISTRO", "jazzy"), "namespace": "/" + NAMESPACE}).toxml()
+    # the description expanded by the xacro executable at launch (its distro argument picks the plugin)
+    description = ParameterValue(
+        Command([FindExecutable(name="xacro"), " ", os.path.join(share, "urdf", "dea_rig.ros2_control.xacro"),
+                 " distro:=", EnvironmentVariable("ROS_DISTRO", default_value="jazzy"),
+                 " namespace:=/" + NAMESPACE]),
+        value_type=str)
     controllers = os.path.join(share, "config", "ros2_controllers.yaml")
     delay = LaunchConfiguration("controller_delay_s")
     return LaunchDescription([

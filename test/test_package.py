@@ -50,6 +50,9 @@ NODES = {
 LAUNCHABLE = {**NODES, "position_controller_node": "position_controller.yaml"}
 #: nodes of other packages a launch file may start (optional, behind a condition)
 FOREIGN_NODES = {("robot_state_publisher", "robot_state_publisher")}
+#: nodes of ros2_control a ros2_control_*.launch.py file starts (its purpose: they are not optional there)
+ROS2_CONTROL_NODES = {("robot_state_publisher", "robot_state_publisher"), ("controller_manager", "ros2_control_node"),
+                      ("controller_manager", "spawner")}
 BEST_EFFORT, RELIABLE, VOLATILE, TRANSIENT_LOCAL = "best_effort", "reliable", "volatile", "transient_local"
 #: the README's topic table: topic -> (type, {publisher node: (reliability, durability)})
 PUBLISHED = {
@@ -434,6 +437,8 @@ def test_launch_file_names_only_what_the_install_has(install, launch_file):
     for action in plan.nodes:
         kw = action.kwargs
         exe = kw.get("executable")
+        if launch_file.startswith("ros2_control") and (kw.get("package"), exe) in ROS2_CONTROL_NODES:
+            continue
         if (kw.get("package"), exe) in FOREIGN_NODES:
             assert "condition" in kw, f"{launch_file}: {exe} of another package must be optional (a condition)"
             continue
