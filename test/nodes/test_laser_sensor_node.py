@@ -211,8 +211,11 @@ def test_node_survives_bad_replies_and_streams_once_the_sensor_behaves(rig, spin
     assert spin_until_count(ex, peer.ranges, 200)  # reconnects within the back-off (<= 5 s)
     assert node.connected
     assert max(abs(m.range - 0.004) for m in peer.ranges if math.isfinite(m.range)) <= 0.5 * Q + 1e-12
-    # only the first samples of a connect wait for confirmation (published as NaN: invalid)
-    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * (node.disconnects + 1), node.error_counts
+    # only the first samples of a connect wait for confirmation (published as NaN: invalid); a frame right
+    # after a framing error (a partial frame when the stream restarts, under load) is flagged and restarts
+    # the confirmation: at most 3 NaN per chain start
+    chain_starts = node.disconnects + 1 + node.error_counts.get("after_framing_error", 0)
+    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * chain_starts, node.error_counts
     assert set(node.error_counts) <= {"unconfirmed", "after_framing_error"}, node.error_counts
 
 
@@ -252,8 +255,11 @@ def test_node_resets_a_mastered_sensor_and_publishes_the_truth(rig):
     # read as mastered, the 4 mm target would be 6 mm (4 - 3 + 5); reset: the truth
     assert spin_until_count(ex, peer.ranges, 200)
     assert max(abs(m.range - 0.004) for m in peer.ranges if math.isfinite(m.range)) <= 0.5 * Q + 1e-12
-    # only the first samples of a connect wait for confirmation (published as NaN: invalid)
-    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * (node.disconnects + 1), node.error_counts
+    # only the first samples of a connect wait for confirmation (published as NaN: invalid); a frame right
+    # after a framing error (a partial frame when the stream restarts, under load) is flagged and restarts
+    # the confirmation: at most 3 NaN per chain start
+    chain_starts = node.disconnects + 1 + node.error_counts.get("after_framing_error", 0)
+    assert sum(math.isnan(m.range) for m in peer.ranges) <= 3 * chain_starts, node.error_counts
     assert set(node.error_counts) <= {"unconfirmed", "after_framing_error"}, node.error_counts
     assert node.sensor.decoder.additional_values_skipped == skipped_at_connect  # no counter values any more
 
