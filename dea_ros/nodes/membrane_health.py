@@ -101,9 +101,11 @@ class ObserverHealth:
         self.tracker = ModelTracker(params, TrackerConfig(sample_period_s=sample_period_s))
         self.tracker.enabled = self.enabled
         self.monitor = HealthMonitor(thresholds_from(node))
-        self.errors = PredictionErrorStats()
+        self.errors = PredictionErrorStats()   # since the last status (each report clears it)
+        self.samples_observed = 0              # laser samples since start (monotonic)
 
     def observe(self, measured_m: float, predicted_m: float, voltage_V: float) -> None:
+        self.samples_observed += 1
         self.errors.add(measured_m, predicted_m)
         if self.enabled:
             self.tracker.update(measured_m, voltage_V)
@@ -111,6 +113,7 @@ class ObserverHealth:
     def status(self, t_s: float):
         tr = self.tracker.result()
         report = self.monitor.assess(t_s, tr.ratios if self.enabled else None, self.errors)
-        values = [("track_model", str(self.enabled)), ("tracker_updates", tr.updates)] + report.values
+        values = [("track_model", str(self.enabled)), ("tracker_updates", tr.updates),
+                  ("laser_samples", self.samples_observed)] + report.values
         self.errors.clear()
         return diagnostic_level(report.level), report.message, values

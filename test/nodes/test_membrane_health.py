@@ -48,14 +48,14 @@ def test_model_node_reports_the_prediction_error_and_the_drift_in_words(ros_cont
     t0_ns = (node.now_ns() // 1_000_000_000 + 1_000_000) * 1_000_000_000     # far future: no timer path
     for k in range(4000):
         u = levels[(k // 800) % len(levels)]
-        n_in, n_pub = node.health.errors.n, node.published
+        n_in, n_pub = node.health.samples_observed, node.published   # monotonic (a report clears errors)
         for _ in range(3):        # best effort: a message may be dropped; send it again
             volt_pub.publish(make_voltage_state(u, t0_ns + k * 1_000_000, True))
             if spin_until(ex, lambda: node.published > n_pub, timeout_s=0.5):
                 break
         for _ in range(3):
             disp_pub.publish(make_range(plant.displacement_m, t0_ns + k * 1_000_000, "dea_laser"))
-            if spin_until(ex, lambda: node.health.errors.n > n_in, timeout_s=0.5):
+            if spin_until(ex, lambda: node.health.samples_observed > n_in, timeout_s=0.5):
                 break
         for _ in range(4):
             plant.step(u)
