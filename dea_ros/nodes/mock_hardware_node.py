@@ -104,6 +104,7 @@ class MockHardwareNode(Node):
         self.samples_out = True                  # the laser samples of the current tick are published
         self.lockstep_timeouts = 0
         self.ack_times: dict = {}
+        self.acks_received = 0                   # lockstep acknowledgements (all participants)
         self.paused = False                      # pause_when_idle: no participant active, the clock stands
         self.wake = threading.Event()            # the executor drained the UDP socket (the waiter may wait again)
         if self.publish_clock and self.lockstep:
@@ -302,7 +303,10 @@ class MockHardwareNode(Node):
 
     def on_ack(self, topic: str):
         def record(msg: Header) -> None:
+            if topic not in self.ack_times:
+                self.get_logger().info(f"lockstep: {topic} acknowledges ticks; the simulated clock waits for it")
             self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
+            self.acks_received += 1
             if self.publish_clock:
                 self.on_sim_tick()  # the last acknowledgement starts the next tick without waiting for the timer
         return record
@@ -380,8 +384,17 @@ class MockHardwareNode(Node):
              ("physics_steps", self.sim.steps), ("samples_published", self.published),
              ("amplifier_datagrams", self.receiver.received_count), ("sim_lag_s", f"{lag:.3f}"),
              ("amplifier_deadman_trips", self.receiver.deadman_trip_count),
-             ("lockstep_timeouts", self.lockstep_timeouts)],
+             ("lockstep_timeouts", self.lockstep_timeouts), ("lockstep", self.lockstep_state()),
+             ("lockstep_acks", self.acks_received)],
         )
+
+    def lockstep_state(self) -> str:
+        """'real time', 'free-running' (no participant acknowledged yet), 'paused' or 'lockstep'."""
+        if not self.publish_clock:
+            return "real time"
+        if not (self.lockstep and self.ack_times):
+            return "free-running"
+        return "paused" if self.paused else "lockstep"
 
     def shutdown_safely(self) -> None:
         """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent."""

@@ -160,17 +160,31 @@ def test_the_rig_costs_no_cpu_while_the_simulated_clock_is_paused(ros_context, s
 
     node.create_subscription(Clock, "/clock", lambda m: clock.append(m.clock.sec + m.clock.nanosec * 1e-9), 10)
     node.create_subscription(BatteryState, f"{ns}/voltage", on_applied, SENSOR_QOS)
+    mock_state = []   # the mock's "lockstep" diagnostic: free-running, lockstep, paused
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            if status.name.endswith("mock_hardware_node: simulated rig"):
+                mock_state.append({kv.key: kv.value for kv in status.values}.get("lockstep"))
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
     try:
         start_rig(rig, "A2", sim_time=True, speed=3.0, laser_rate_hz=500.0, update_rate_hz=250.0,
                   true_params=str(TRUTH), model=True)
         assert spin_until(ex, lambda: bool(clock) or rig.check_alive() is not None, timeout_s=60.0), "no /clock"
+        # the clock runs free until the mock has discovered the amplifier's acknowledgements (seconds under load)
+        assert spin_until(ex, lambda: "lockstep" in mock_state or rig.check_alive() is not None,
+                          timeout_s=120.0), f"the lockstep never engaged: mock reported {mock_state[-3:]}"
         t_first = clock[-1]
         assert spin_until(ex, lambda: clock[-1] >= t_first + 1.0 or rig.check_alive() is not None,
                           timeout_s=120.0), f"the clock did not run while commanded ({clock[-1] - t_first:.3f} s)"
         assert rig.check_alive() is None, rig.check_alive()
         commanding[0] = False
-        # silence: the mock pauses the clock after lockstep_timeout_s (0.5 s); let everything settle
-        spin_until(ex, lambda: False, timeout_s=3.0)
+        # silence: the mock pauses the clock after lockstep_timeout_s (0.5 s) and says so on /diagnostics
+        n_reports = len(mock_state)
+        assert spin_until(ex, lambda: "paused" in mock_state[n_reports:], timeout_s=30.0), \
+            f"the clock did not pause: mock reported {mock_state[n_reports:]}"
+        spin_until(ex, lambda: False, timeout_s=1.0)   # let everything settle
         t_paused = clock[-1]
         cpu0 = {name: process_cpu_s(p.pid) for name, p in rig.procs.items()}
         spin_until(ex, lambda: False, timeout_s=5.0)
