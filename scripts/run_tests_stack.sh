@@ -7,7 +7,10 @@
 #   scripts/run_tests_stack.sh jazzy [pytest args]    Python 3.12, numpy 1.26.4, scipy 1.11.4, numba 0.59.0 (Ubuntu 24.04's),
 #                                                     matplotlib 3.8.4 (24.04 has 3.6.3, which PyPI has for
 #                                                     Python <= 3.11 only), with Jazzy's rclpy and messages from the
-#                                                     ros-jazzy-* wheels: the whole suite, nodes and rig included
+#                                                     ros-jazzy-* wheels: the whole suite, nodes and rig included,
+#                                                     except the long numerical tests without ROS (marker
+#                                                     numeric_heavy, test/conftest.py: humble's older and the
+#                                                     default stack's newer numpy/scipy/numba run them)
 #
 # The environment (.venv-<stack>) is built the way a lab PC gets its packages: first the distribution's
 # versions (requirements-stack-<stack>.txt, as apt installs them), then the project's own set-up
@@ -79,6 +82,10 @@ fi
 'numpy', numpy.__version__, 'numba', numba.__version__, 'scipy', scipy.__version__, 'matplotlib', matplotlib.__version__, 'PyYAML', yaml.__version__)"
 export MPLBACKEND=Agg ROS_DISTRO="$stack"
 if [ "$#" -eq 0 ]; then
-  set -- -m "not linter"
+  if [ "$stack" = jazzy ]; then
+    set -- -m "not linter and not numeric_heavy"   # humble and default run those (test/conftest.py)
+  else
+    set -- -m "not linter"
+  fi
 fi
 exec "$venv/bin/python" -m pytest -q "$@"
