@@ -49,12 +49,15 @@ from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
            "first_fit_from_result", "candidate_records", "candidate_information", "plan_experiments",
-           "plan_protocol", "PlanningError", "DEFAULT_TARGETS", "WIDTH_CAP", "T95"]
+           "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS", "WIDTH_CAP", "T95"]
 
 DEFAULT_TARGETS = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
 #: relative 95 % half-width a direction no record sees counts as (100 x the value)
 WIDTH_CAP = 100.0
 T95 = 1.96
+#: a record must lower the criterion by at least this much to be picked (widths: 0.1 % of one width;
+#: A: this fraction of the criterion before the plan)
+MIN_DECREASE = 1e-3
 _LOG_NAMES = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
 
 
@@ -241,7 +244,7 @@ class ExperimentPlan:
                 "picks": [p.to_dict() for p in self.picks], "notes": list(self.notes)}
 
 
-def _sine_duration(limits: PlanLimits, f: float) -> tuple:
+def sine_record_cost(limits: PlanLimits, f: float) -> tuple:
     """(experiment time, measured samples) of one sine record, whole periods as the protocol runs it."""
     periods = max(1, math.ceil(limits.measure_s * f - 1e-9))
     settle = math.ceil(limits.settle_s * f - 1e-9) / f
@@ -264,6 +267,12 @@ def _frequency_grid(params: MembraneParameters, limits: PlanLimits) -> np.ndarra
     return np.array(sorted({round(float(f), 3) for f in grid}))
 
 
+def step_rest_s(params: MembraneParameters) -> float:
+    """Rest at 0 V before a step so it starts from rest as the step fit assumes: five creep times
+    eta1/k1, at least 2 s, at most 60 s (a step costs it too)."""
+    return float(min(max(5.0 * params.eta1_Pa_s / params.k1_Pa, 2.0), 60.0))
+
+
 def candidate_records(params: MembraneParameters, limits: PlanLimits | None = None) -> list:
     """Every candidate within the limits: sines (amplitude x frequency, slew-limited: U w <= slew),
     steps from 0 V, static points at the dynamic mass and at 0 V / full voltage on the other masses."""
@@ -274,14 +283,15 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
     if limits.offsets:
         shapes.append((umax / 2, umax / 2))
     for f in _frequency_grid(params, limits):
-        dur, n = _sine_duration(limits, float(f))
+        dur, n = sine_record_cost(limits, float(f))
         for amp, off in shapes:
             if amp * 2 * math.pi * f > limits.slew_rate_V_per_s:
                 continue
             out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
                                        measured_samples=n))
+    rest = step_rest_s(params)
     for a in limits.step_fractions:
-        out.append(CandidateRecord("step", limits.step_pre_s + limits.step_hold_s, params.mass_kg,
+        out.append(CandidateRecord("step", rest + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
                                    final_V=float(a * umax)))
     n_static = int(round(limits.static_measure_s * limits.sample_rate_Hz))
     levels = [(params.mass_kg, a * umax) for a in limits.static_fractions]
@@ -308,7 +318,7 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
                                  periodic_input=excitation)]
         rms_sigma = [noise * math.sqrt(1.0 / max(record.measured_samples, 1) + 1.0 / limits.baseline_samples)]
     elif record.kind == "step":
-        t = np.arange(0.0, record.duration_s, 1.0 / limits.sample_rate_Hz)
+        t = np.arange(0.0, limits.step_pre_s + limits.step_hold_s, 1.0 / limits.sample_rate_Hz)
         u = np.where(t < limits.step_pre_s, 0.0, record.final_V)
         steps = [StepData(t, u, np.zeros_like(t), record.mass_kg, "zoh", record.label())]
     else:
@@ -393,13 +403,14 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     before = _widths(first, info)
     picks, used, spent = [], set(), 0.0
     current = _criterion(before, idx, criterion)
+    threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
     while len(picks) < max_records:
         best = None
         for k, (c, g) in enumerate(information):
             if k in used or spent + c.duration_s > budget_s + 1e-9:
                 continue
             gain = current - _criterion(_widths(first, info + g), idx, criterion)
-            if gain > 1e-9 and (best is None or gain / c.duration_s > best[0]):
+            if gain > threshold and (best is None or gain / c.duration_s > best[0]):
                 best = (gain / c.duration_s, gain, k)
         if best is None:
             break
@@ -422,7 +433,8 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
 
 def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | None = None) -> Protocol:
     """The planned records as a protocol the identifier node runs (the mass and membrane of ``base``):
-    sines grouped by amplitude and offset, steps from 0 V, static levels, then 0 V. Static points at
+    steps from 0 V after a rest (:func:`step_rest_s`), static levels, sines grouped by amplitude and
+    offset, then 0 V. Static points at
     another mass cannot be run without changing the mass by hand: they are left out (PlanningError if
     nothing else is left)."""
     limits = limits or PlanLimits()
@@ -433,6 +445,7 @@ def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | Non
         if r.kind == "sine":
             shapes.setdefault((r.amplitude_V, r.offset_V), []).append(r.frequency_Hz)
         elif r.kind == "step":
+            segments.append({"kind": "rest", "hold_s": r.duration_s - limits.step_pre_s - limits.step_hold_s})
             segments.append({"kind": "step", "initial_V": 0.0, "final_V": r.final_V, "pre_s": limits.step_pre_s,
                              "hold_s": limits.step_hold_s})
         elif abs(r.mass_kg - base.mass_kg) < 1e-9:
