@@ -165,8 +165,8 @@ def main() -> None:
                 done.append(rec)
                 with path.open("a") as fh:
                     fh.write(json.dumps(rec) + "\n")
-                print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of {rec['budget_s']:.0f} s), "
-                      f"wall {rec['wall_s']}", file=sys.stderr, flush=True)
+                print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of "
+                      f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
     text = "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
                       f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
                       f"{len(done)} runs.", ""] + table(done)) + "\n"

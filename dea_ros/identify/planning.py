@@ -49,7 +49,8 @@ from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
            "first_fit_from_result", "candidate_records", "candidate_information", "plan_experiments",
-           "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS", "WIDTH_CAP", "T95"]
+           "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS",
+           "WIDTH_CAP", "T95"]
 
 DEFAULT_TARGETS = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
 #: relative 95 % half-width a direction no record sees counts as (100 x the value)

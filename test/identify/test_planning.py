@@ -120,7 +120,7 @@ def test_planned_records_become_protocol_segments_the_node_runs():
     other = next(c for c in recs if c.kind == "static" and c.mass_kg == 0.005)
     assert step.duration_s == pytest.approx(rest + 0.5 + 5.0)
     base = Protocol.from_dict({"protocol": {"name": "p", "mass_kg": params.mass_kg,
-                                                                    "segments": [{"kind": "rest", "hold_s": 1}]}})
+                                            "segments": [{"kind": "rest", "hold_s": 1}]}})
     proto = plan_protocol(_plan_of([sine, offset, step, static, other]), base)
     segs = proto.schedule(max_voltage_V=2500.0)
     kinds = [s.kind for s in segs]
