@@ -144,6 +144,25 @@ def table(records: list) -> list[str]:
     return out
 
 
+def per_run(records: list) -> list[str]:
+    """One line per run: the picks, eta1's interval (one pass, first pass, predicted, two passes), the
+    eta1/eta2 correlation and sigma_h''(1)'s status."""
+    out = ["| membrane, seed | creep s / f_r Hz | picks: sines, steps (s) | time one / two passes s | eta1 95 % "
+           "half-width: one / first / predicted / two | abs corr(eta1, eta2): one / two | sigma_h''(1): one / two |",
+           "|---|---|---|---|---|---|---|"]
+    for r in records:
+        w = [r[k]["params"].get("eta1_Pa_s", {}).get("rel_width", float("nan")) * 100 for k in ("one", "first")]
+        pred = (r["predicted_after"].get("eta1_Pa_s") or float("nan")) * 100
+        two = r["two"]["params"]["eta1_Pa_s"]["rel_width"] * 100
+        n_sine = sum(p.startswith("sine") for p in r["plan"])
+        c1, c2 = (abs(r[k].get("corr_eta1_eta2", float("nan"))) for k in ("one", "two"))
+        out.append(f"| {r['membrane']}, {r['seed']} | {r['creep_s']:.2g} / {r['f_r_Hz']:.1f} | {n_sine}, "
+                   f"{len(r['plan']) - n_sine} ({r['plan_total_s']:.0f}) | {r['one']['experiment_s']:.0f} / "
+                   f"{r['two']['experiment_s']:.0f} | {w[0]:.3g} / {w[1]:.3g} / {pred:.3g} / {two:.3g} % | "
+                   f"{c1:.2f} / {c2:.2f} | {r['one']['curvature_status']} / {r['two']['curvature_status']} |")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--membranes", type=int, default=3)
@@ -169,7 +188,7 @@ def main() -> None:
                       f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
     text = "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
                       f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
-                      f"{len(done)} runs.", ""] + table(done)) + "\n"
+                      f"{len(done)} runs.", ""] + table(done) + [""] + per_run(done)) + "\n"
     print(text)
 
 
