@@ -75,6 +75,9 @@ class FirstFit:
     static_sigma_m: float
     reported_ci95: dict = field(default_factory=dict)   # name -> [low, high] as params.yaml states it
     source: str = ""
+    #: the first fit's own doubts (a parameter at its search bound, no convergence): the plan is
+    #: linearised at that fit and may not help if it is in the wrong basin
+    warnings: tuple = ()
 
     def scale(self) -> np.ndarray:
         """Per parameter: multiply a statistics-unit column by it to get relative units."""
@@ -128,7 +131,8 @@ def _first_fit(params: MembraneParameters, info: dict, reported: dict, source: s
                             "and a positive variance_factor")
     if noise is None or not float(noise) > 0:
         raise PlanningError(f"{source}: fisher_information has no laser_noise_m (the first fit had no step)")
-    return FirstFit(params, names, values, matrix, var, float(noise), static_sigma, reported, source)
+    warnings = tuple(str(w) for w in (info.get("first_fit_warnings") or ()))
+    return FirstFit(params, names, values, matrix, var, float(noise), static_sigma, reported, source, warnings)
 
 
 @dataclass(frozen=True)
@@ -393,10 +397,12 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     if not targets:
         raise PlanningError(f"no target parameter is among the first fit's {first.names}")
     idx = [first.names.index(n) for n in targets]
-    notes = []
+    notes = [f"the first fit warned: {w}; the plan is linearised at that fit, which may be wrong: check it "
+             "(more data where it is doubtful, another start) before trusting the plan" for w in first.warnings]
     if information is None:
         cands = candidate_records(first.parameters, limits) if candidates is None else list(candidates)
-        information, notes = candidate_information(first, cands, limits)
+        information, left_out = candidate_information(first, cands, limits)
+        notes += left_out
     if not information:
         raise PlanningError("no candidate experiment within the limits could be evaluated")
     scale = first.scale()

@@ -138,6 +138,7 @@ class IdentificationResult:
                 "laser_noise_m": float(np.median(step_s)) if step_s else None,
                 "rms_sigma_m_median": float(np.median(rms_s)) if rms_s else None,
                 "mass_kg": float(self.parameters.mass_kg),
+                "first_fit_warnings": [str(w) for w in joint.warnings if "bound" in str(w) or "converge" in str(w)],
                 "note": "covariance = variance_factor * matrix^-1; read by dea-ros plan"}
 
     def to_dict(self) -> dict:

@@ -177,6 +177,15 @@ def test_cli_plan_text_json_protocol_and_exit_codes(first, tmp_path, capsys):
     assert data["picks"] and data["total_s"] <= 25.0
     assert data["relative_ci95_after"]["eta1_Pa_s"] < data["relative_ci95_before"]["eta1_Pa_s"]
     assert load_protocol(proto_out).schedule(max_voltage_V=2500.0)
+    # a first fit that doubts itself: the plan says so
+    doubt = yaml.safe_load(first["path"].read_text())
+    doubt["identification"]["fisher_information"]["first_fit_warnings"] = ["joint refinement: eta2_Pa_s ended at "
+                                                                           "the search bound"]
+    doubtful = tmp_path / "doubtful.yaml"
+    doubtful.write_text(yaml.safe_dump(doubt))
+    assert program.main(["plan", "--from", str(doubtful), "--budget-s", "12", "--fmax", "30"]) == 0
+    assert "note: the first fit warned: joint refinement: eta2_Pa_s ended at the search bound" in \
+        capsys.readouterr().out
     # bad input: exit 2 with a message naming the problem
     no_info = tmp_path / "plain.yaml"
     no_info.write_text(yaml.safe_dump({"membrane": SOFTENING.to_dict()}))
