@@ -19,7 +19,7 @@ __all__ = [
     "VoltageRecordError",
     # identification
     "ExperimentError", "StaticFitError", "DynamicFitError", "JointFitError", "IdentificationError",
-    "ProtocolError",
+    "PlanningError", "ProtocolError",
     # control
     "UnreachableReferenceError",
     # study
@@ -95,6 +95,11 @@ class JointFitError(ExperimentError):
 
 class IdentificationError(ExperimentError):
     """The experiment set cannot be identified as asked (the message says what is missing)."""
+
+
+class PlanningError(DeaRosError, ValueError):
+    """An experiment plan cannot be made from these inputs (a params.yaml without the first fit's
+    Fisher information, limits that admit no candidate, ...); the message says what is missing."""
 
 
 class ProtocolError(DeaRosError, ValueError):

@@ -1,7 +1,7 @@
 """``dea-ros``: command line on top of the core (no ROS needed).
 
 Subcommands: ``equilibrium``, ``simulate``, ``sweep`` (model and solvers);
-``synth``, ``identify`` (identification); ``replay``, ``bag`` (MCAP logs, with
+``synth``, ``identify``, ``plan`` (identification); ``replay``, ``bag`` (MCAP logs, with
 ROS 2); ``rig`` (the whole rig on mock hardware). ``dea-ros CMD --help`` for each.
 Every command takes ``--membrane NAME`` (LP1, A1, A2) or ``--params FILE``,
 prints readable text by default and JSON with ``--json``. Errors exit with code
@@ -23,7 +23,8 @@ __all__ = ["main", "build_parser", "COMMAND_MODULES"]
 
 #: the modules that add command groups to ``dea-ros`` (each has ``register(subparsers)``); a group
 #: whose module cannot be imported here (e.g. ``replay`` without rclpy) is left out of the parser
-COMMAND_MODULES = ("dea_ros.cli.model", "dea_ros.cli.sweep", "dea_ros.cli.identify", "dea_ros.cli.study",
+COMMAND_MODULES = ("dea_ros.cli.model", "dea_ros.cli.sweep", "dea_ros.cli.identify", "dea_ros.cli.plan",
+                   "dea_ros.cli.study",
                    "dea_ros.cli.bag", "dea_ros.cli.replay", "dea_ros.cli.rig")
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ParameterDetermination", "parameter_status", "record_widening", "determine_parameters",
+__all__ = ["ParameterDetermination", "parameter_status", "record_widening", "inverse_diagonal", "determine_parameters",
            "IDENTIFIED_REL_CI", "SIGN_KNOWN_REL_CI", "DETERMINING_WIDENING"]
 
 IDENTIFIED_REL_CI = 0.5
@@ -60,7 +60,7 @@ def parameter_status(relative_ci: float) -> str:
     return "identified" if relative_ci <= IDENTIFIED_REL_CI else "poorly determined"
 
 
-def _inverse_diagonal(info: np.ndarray) -> np.ndarray:
+def inverse_diagonal(info: np.ndarray) -> np.ndarray:
     """diag(info^-1), inf where info is singular (a direction no remaining record sees)."""
     w, v = np.linalg.eigh(info)
     if w[-1] <= 0 or w[0] <= 1e-13 * w[-1]:
@@ -80,12 +80,12 @@ def record_widening(jacobian, row_records, names) -> dict:
     scale[scale == 0] = 1.0
     jac = jac / scale
     info = jac.T @ jac
-    base = _inverse_diagonal(info)
+    base = inverse_diagonal(info)
     rows = np.asarray(row_records, dtype=object)
     out = {n: {} for n in names}
     for rec in dict.fromkeys(row_records):
         jg = jac[rows == rec]
-        without = _inverse_diagonal(info - jg.T @ jg)
+        without = inverse_diagonal(info - jg.T @ jg)
         for i, n in enumerate(names):
             if not math.isfinite(base[i]):
                 continue

@@ -255,6 +255,14 @@ class JointObjective:
     def jacobian(self, theta):
         return self.evaluate(theta)[1]
 
+    def physical_jacobian(self, theta) -> np.ndarray:
+        """The weighted Jacobian in the statistics' units: d residual / d stress combination (per Pa),
+        eps_r, ln k1, ln eta1, ln eta2 (the optimiser's stress units divided out)."""
+        jac = self.evaluate(theta)[1].copy()
+        for j, i in enumerate(self.stress_index):
+            jac[:, j] /= _UNITS[i]
+        return jac
+
 
 def _sigmas(static_fit_residual_std: float | None, steps, points, noise_m):
     step_s = []
@@ -361,15 +369,13 @@ def _row_records(objective: JointObjective) -> tuple:
 def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings: list, curvature_fallback_Pa,
                   curvature_rel_ci_limit: float, t0: float) -> JointFitResult:
     """The result at the optimum ``sol``: parameters, linearised statistics, warnings."""
-    res, jac, details = objective.evaluate(sol.x)
+    res, _jac, details = objective.evaluate(sol.x)
+    jac_phys = objective.physical_jacobian(sol.x)
     params = objective.parameters(sol.x)
     q = len(objective.stress_index)
     combos = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
     values = np.r_[[combos[i] for i in objective.stress_index], params.relative_permittivity,
                    params.k1_Pa, params.eta1_Pa_s, params.eta2_Pa_s]
-    jac_phys = jac.copy()
-    for j, i in enumerate(objective.stress_index):
-        jac_phys[:, j] /= _UNITS[i]
     stats = parameter_statistics(jac_phys, res, objective.names, values,
                                  log_parameters=[False] * (q + 1) + [True] * 3, context="joint fit")
     warnings += stats.warnings

@@ -24,6 +24,12 @@ A protocol YAML (``config/protocols/*.yaml``)::
           measure_s: 3.0        # rounded up to whole periods
         - kind: rest            # back to 0 V
           hold_s: 1.0
+      adaptive: false           # true: after the first fit, plan and run a second pass (below)
+      adaptive_budget_s: 60     # experiment time of the second pass
+
+With ``adaptive: true`` the identifier plans the second pass from its first fit
+(:func:`dea_ros.identify.planning.plan_experiments`) and runs the picks as the segments of
+:func:`dea_ros.identify.planning.plan_protocol`, then identifies from both passes.
 
 :class:`Protocol.schedule` expands it into :class:`Segment` objects with absolute start/end
 times (s from the protocol start), each with a ``voltage_at(t)`` function and the measurement
@@ -114,6 +120,8 @@ class Protocol:
     mass_kg: float
     raw_segments: tuple
     source: str = ""
+    adaptive: bool = False          # plan and run a second pass after the first fit
+    adaptive_budget_s: float = 60.0  # its experiment time (s)
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "protocol") -> "Protocol":
@@ -127,8 +135,16 @@ class Protocol:
         mass = _num(data, "mass_kg", source, default=0.003, positive=True)
         if mass > 10:
             raise ProtocolError(f"{source}: mass_kg {mass} looks like grams; kg expected (3 g -> 0.003)")
+        unknown = set(data) - {"name", "membrane", "mass_kg", "segments", "adaptive", "adaptive_budget_s"}
+        if unknown:
+            raise ProtocolError(f"{source}: unknown field(s) {sorted(unknown)}; allowed name, membrane, mass_kg, "
+                                "segments, adaptive, adaptive_budget_s")
+        adaptive = data.get("adaptive", False)
+        if not isinstance(adaptive, bool):
+            raise ProtocolError(f"{source}: 'adaptive' must be true or false, got {adaptive!r}")
+        budget = _num(data, "adaptive_budget_s", source, default=60.0, positive=True)
         proto = cls(str(data.get("name", Path(source).stem)), str(data.get("membrane", "A2")), mass,
-                    tuple(segments), source)
+                    tuple(segments), source, adaptive, budget)
         proto.schedule()  # validates every segment
         return proto
 
@@ -196,6 +212,18 @@ class Protocol:
             if max_voltage_V is not None and peaks and max(peaks) > max_voltage_V:
                 raise ProtocolError(f"{where}: {max(peaks):.0f} V exceeds the rig's maximum {max_voltage_V:.0f} V")
         return out
+
+    def to_dict(self) -> dict:
+        """The protocol as its YAML mapping (``{"protocol": {...}}``)."""
+        return {"protocol": {"name": self.name, "membrane": self.membrane, "mass_kg": self.mass_kg,
+                             "adaptive": self.adaptive, "adaptive_budget_s": self.adaptive_budget_s,
+                             "segments": [dict(s) for s in self.raw_segments]}}
+
+    def write_yaml(self, path) -> Path:
+        """Write the protocol as YAML (loadable by :func:`load_protocol`)."""
+        path = Path(path)
+        path.write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+        return path
 
     def duration_s(self) -> float:
         segs = self.schedule()

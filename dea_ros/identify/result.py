@@ -110,6 +110,9 @@ class IdentificationResult:
                 i = st.names.index(name)
                 if np.isfinite(st.relative_ci[i]):
                     meta[f"{name}_ci95"] = [float(st.ci_low[i]), float(st.ci_high[i])]
+        info = self.fisher_information()
+        if info is not None:
+            meta["fisher_information"] = info
         left_out = [c_["frequency_Hz"] for c_ in self.classification if c_.get("used") == "left out"]
         if left_out:
             meta["left_out_frequencies_Hz"] = [float(f) for f in left_out]
@@ -117,6 +120,26 @@ class IdentificationResult:
         if pd:
             meta["period_doubled_fits_Hz"] = [float(f) for f in pd]
         return meta
+
+    def fisher_information(self) -> dict | None:
+        """The joint fit's Fisher information F = J^T J (weighted Jacobian, statistics' units: Pa for the
+        stress combinations in s, 1 for eps_r, ln for k1, eta1, eta2) with what an experiment planner needs
+        to add records to it (:mod:`~dea_ros.identify.planning`); None without a joint fit."""
+        joint = self.joint
+        if joint is None or joint.jacobian is None:
+            return None
+        jac = np.asarray(joint.jacobian, float)
+        step_s = [float(v) for v in joint.sigmas.get("step_m", [])]
+        rms_s = [float(v) for v in joint.sigmas.get("rms_m", [])]
+        return {"names": list(joint.names), "values": [float(v) for v in joint.statistics.values],
+                "log_parameters": [n in ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s") for n in joint.names],
+                "matrix": (jac.T @ jac).tolist(), "variance_factor": float(joint.cost / max(joint.dof, 1)),
+                "dof": int(joint.dof), "static_sigma_m": float(joint.sigmas.get("static_m", float("nan"))),
+                "laser_noise_m": float(np.median(step_s)) if step_s else None,
+                "rms_sigma_m_median": float(np.median(rms_s)) if rms_s else None,
+                "mass_kg": float(self.parameters.mass_kg),
+                "first_fit_warnings": [str(w) for w in joint.warnings if "bound" in str(w) or "converge" in str(w)],
+                "note": "covariance = variance_factor * matrix^-1; read by dea-ros plan"}
 
     def to_dict(self) -> dict:
         """JSON-friendly summary: parameters, fits, metrics, statistics, warnings, timings."""

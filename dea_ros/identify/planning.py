@@ -1,0 +1,468 @@
+"""Experiments that ask the right questions (issue 21, item 3): a Fisher-information experiment planner.
+
+From a first fit -- its Fisher information F = J^T J (the weighted Jacobian of the joint refinement,
+:meth:`~dea_ros.identify.result.IdentificationResult.fisher_information`, written to params.yaml) and
+its parameters -- every candidate experiment within the amplifier limits (a sine record: frequency,
+amplitude, offset; a step from 0 V: its level; a static point: its voltage, at another mass only
+where the rig has one) gets the information it would add, G_c = J_c^T J_c, with J_c the weighted
+Jacobian of that record's residuals at the fitted parameters. J_c comes from the joint refinement's
+own objective (:class:`~dea_ros.identify.joint_fit.JointObjective`: harmonic-balance sensitivities of
+d_rms, the collocation sensitivities of a step, implicit differentiation of eq. 20), with the
+weights the refit will give the record: the laser noise sigma on every step sample, sigma *
+sqrt(1/N + 1/N0) on an RMS value measured over N samples (N0 baseline samples of the rest position;
+the bound of :func:`~dea_ros.identify.experiments.records.rms_statistics` for white noise), the first
+fit's static residual scatter on a static point.
+
+The expected 95 % half-widths are t * sqrt(s^2 [F^-1]_ii) in relative units (ln for k1, eta1, eta2,
+value-relative for eps_r and the stress combinations), s^2 the first fit's chi^2/dof; a direction no
+record sees has an infinite width (counted as ``WIDTH_CAP`` by the criterion). Greedy selection:
+repeatedly add the candidate with the largest decrease of the criterion per second of experiment
+time that still fits the budget, until the budget is spent or no candidate helps. Criteria over the
+target parameters (default: eps_r, k1, eta1, eta2, sigma_h''(1)):
+
+* ``widths`` (default): sum of ln(width) -- every target's relative shrinkage counts the same, so the
+  eta1/eta2 trade-off is broken as eagerly as the curvature is pinned;
+* ``A``: sum of width^2 -- the widest intervals dominate.
+
+The result (:class:`ExperimentPlan`) holds the picks with the expected widths after each, and the
+widths and the eta1/eta2 correlation before and after; :func:`plan_protocol` turns the picks into
+protocol segments the identifier node runs (:mod:`~dea_ros.identify.protocols`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..errors import DeaRosError, PlanningError
+from ..model.parameters import MembraneParameters
+from ..solvers.inputs import SinePeriodic
+from ..solvers.sweep import frequency_sweep
+from .determination import inverse_diagonal
+from .experiments import StaticData, StepData
+from .frequency_points import FrequencyPoint
+from .joint_fit import JointObjective
+from .protocols import Protocol
+
+__all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
+           "first_fit_from_result", "candidate_records", "candidate_information", "plan_experiments",
+           "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS",
+           "WIDTH_CAP", "T95"]
+
+DEFAULT_TARGETS = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
+#: relative 95 % half-width a direction no record sees counts as (100 x the value)
+WIDTH_CAP = 100.0
+T95 = 1.96
+#: a record must lower the criterion by at least this much to be picked (widths: 0.1 % of one width;
+#: A: this fraction of the criterion before the plan)
+MIN_DECREASE = 1e-3
+_LOG_NAMES = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
+
+
+@dataclass(frozen=True)
+class FirstFit:
+    """What the planner needs of the first fit: parameters and Fisher information (statistics' units)."""
+
+    parameters: MembraneParameters
+    names: tuple
+    values: np.ndarray
+    information: np.ndarray        # F = J^T J of the weighted residuals, statistics' units
+    variance_factor: float         # s^2 = chi^2 / dof: covariance = s^2 F^-1
+    laser_noise_m: float
+    static_sigma_m: float
+    reported_ci95: dict = field(default_factory=dict)   # name -> [low, high] as params.yaml states it
+    source: str = ""
+    #: the first fit's own doubts (a parameter at its search bound, no convergence): the plan is
+    #: linearised at that fit and may not help if it is in the wrong basin
+    warnings: tuple = ()
+
+    def scale(self) -> np.ndarray:
+        """Per parameter: multiply a statistics-unit column by it to get relative units."""
+        return np.array([1.0 if n in _LOG_NAMES else max(abs(float(v)), 1e-30)
+                         for n, v in zip(self.names, self.values)])
+
+
+def first_fit_from_result(result) -> FirstFit:
+    """The :class:`FirstFit` of an :class:`~dea_ros.identify.result.IdentificationResult`."""
+    info = result.fisher_information()
+    if info is None:
+        raise PlanningError("the identification has no joint refinement: no Fisher information to plan from")
+    return _first_fit(result.parameters, info, {}, "identification result")
+
+
+def first_fit_from_file(path) -> FirstFit:
+    """The :class:`FirstFit` of a params.yaml written by ``dea-ros identify``."""
+    path = Path(path)
+    if not path.is_file():
+        raise PlanningError(f"{path}: no such file (give the params.yaml written by dea-ros identify)")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise PlanningError(f"{path}: not valid YAML ({exc})") from None
+    ident = data.get("identification") if isinstance(data, dict) else None
+    info = ident.get("fisher_information") if isinstance(ident, dict) else None
+    if not isinstance(info, dict):
+        raise PlanningError(f"{path}: no 'identification: fisher_information' section; plan from the params.yaml "
+                            "of a dea-ros identify run with the joint refinement (re-run identify if it is older)")
+    try:
+        params = MembraneParameters.from_yaml(path)
+    except DeaRosError as exc:
+        raise PlanningError(f"{path}: {exc}") from None
+    reported = {n: v.get("ci95") for n, v in (ident.get("parameters") or {}).items() if isinstance(v, dict)}
+    return _first_fit(params, info, reported, str(path))
+
+
+def _first_fit(params: MembraneParameters, info: dict, reported: dict, source: str) -> FirstFit:
+    try:
+        names = tuple(str(n) for n in info["names"])
+        values = np.asarray(info["values"], float)
+        matrix = np.asarray(info["matrix"], float)
+        var = float(info["variance_factor"])
+        noise = info.get("laser_noise_m")
+        static_sigma = float(info.get("static_sigma_m") or float("nan"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise PlanningError(f"{source}: fisher_information is incomplete or malformed ({exc})") from None
+    p = len(names)
+    if values.shape != (p,) or matrix.shape != (p, p) or not np.all(np.isfinite(matrix)) or not var > 0:
+        raise PlanningError(f"{source}: fisher_information: {p} names need {p} values and a finite {p}x{p} matrix "
+                            "and a positive variance_factor")
+    if noise is None or not float(noise) > 0:
+        raise PlanningError(f"{source}: fisher_information has no laser_noise_m (the first fit had no step)")
+    warnings = tuple(str(w) for w in (info.get("first_fit_warnings") or ()))
+    return FirstFit(params, names, values, matrix, var, float(noise), static_sigma, reported, source, warnings)
+
+
+@dataclass(frozen=True)
+class PlanLimits:
+    """The candidate grid and the rig's limits (V, V/s, Hz, s, kg)."""
+
+    max_voltage_V: float = 2500.0
+    slew_rate_V_per_s: float = 100000.0
+    min_frequency_Hz: float = 0.3
+    max_frequency_Hz: float = 40.0
+    n_frequencies: int = 24
+    amplitude_fractions: tuple = (0.6, 0.8, 1.0)    # of max_voltage_V (sines without offset)
+    offsets: bool = True                             # also u = U/2 + U/2 sin (offset = amplitude, peak U)
+    step_fractions: tuple = (0.6, 0.8, 1.0)          # step levels from 0 V
+    static_fractions: tuple = (0.5, 0.7, 0.9, 1.0)   # static points at the dynamic mass
+    other_masses_kg: tuple = ()                      # masses the rig has besides the dynamic one
+    settle_s: float = 8.0                            # sine: transient discarded (whole periods)
+    measure_s: float = 3.0                           # sine: measured (whole periods)
+    step_pre_s: float = 0.5
+    step_hold_s: float = 5.0
+    static_hold_s: float = 4.0
+    static_measure_s: float = 1.0
+    sample_rate_Hz: float = 1000.0
+    baseline_samples: int = 1000
+
+    def __post_init__(self):
+        for name in ("max_voltage_V", "slew_rate_V_per_s", "min_frequency_Hz", "max_frequency_Hz", "settle_s",
+                     "measure_s", "step_pre_s", "step_hold_s", "static_hold_s", "static_measure_s",
+                     "sample_rate_Hz"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise PlanningError(f"plan limits: {name} must be a positive number, got {v!r}")
+        if self.min_frequency_Hz >= self.max_frequency_Hz:
+            raise PlanningError("plan limits: min_frequency_Hz must be below max_frequency_Hz")
+        for name in ("amplitude_fractions", "step_fractions", "static_fractions"):
+            if any(not (0 < float(f) <= 1) for f in getattr(self, name)):
+                raise PlanningError(f"plan limits: {name} must lie in (0, 1] (fractions of max_voltage_V)")
+
+
+@dataclass(frozen=True)
+class CandidateRecord:
+    """One experiment the rig can run (V, Hz, kg, s)."""
+
+    kind: str                       # "sine", "step", "static"
+    duration_s: float               # experiment time it costs
+    mass_kg: float
+    frequency_Hz: float = float("nan")
+    amplitude_V: float = float("nan")
+    offset_V: float = 0.0
+    final_V: float = float("nan")   # step from 0 V
+    voltage_V: float = float("nan")  # static point
+    measured_samples: int = 0        # samples the sine's RMS or the static mean is measured over
+
+    def label(self) -> str:
+        if self.kind == "sine":
+            off = f" + {self.offset_V:.0f} V offset" if self.offset_V else ""
+            return f"sine {self.frequency_Hz:.3g} Hz, {self.amplitude_V:.0f} V{off}"
+        if self.kind == "step":
+            return f"step 0 -> {self.final_V:.0f} V"
+        return f"static {self.voltage_V:.0f} V at {self.mass_kg * 1e3:.3g} g"
+
+    def to_dict(self) -> dict:
+        out = {"kind": self.kind, "label": self.label(), "duration_s": self.duration_s, "mass_kg": self.mass_kg}
+        if self.kind == "sine":
+            out.update(frequency_Hz=self.frequency_Hz, amplitude_V=self.amplitude_V, offset_V=self.offset_V)
+        elif self.kind == "step":
+            out.update(initial_V=0.0, final_V=self.final_V)
+        else:
+            out.update(voltage_V=self.voltage_V)
+        return out
+
+
+@dataclass
+class PlannedRecord:
+    """A picked record: its expected effect (relative 95 % half-widths after it and the earlier picks)."""
+
+    record: CandidateRecord
+    criterion_decrease: float
+    decrease_per_s: float
+    widths_after: dict
+
+    def to_dict(self) -> dict:
+        return {**self.record.to_dict(), "criterion_decrease": self.criterion_decrease,
+                "decrease_per_s": self.decrease_per_s, "relative_ci95_after": dict(self.widths_after)}
+
+
+@dataclass
+class ExperimentPlan:
+    """The planner's result (module docstring): widths are relative 95 % half-widths (0.01 = 1 %)."""
+
+    names: tuple
+    targets: tuple
+    criterion: str
+    budget_s: float
+    widths_before: dict
+    widths_after: dict
+    correlation_before: dict        # "eta1/eta2" etc.: correlation of the pair, before and after
+    correlation_after: dict
+    picks: list
+    n_candidates: int
+    source: str = ""
+    notes: list = field(default_factory=list)
+
+    @property
+    def total_s(self) -> float:
+        return float(sum(p.record.duration_s for p in self.picks))
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "criterion": self.criterion, "budget_s": self.budget_s,
+                "total_s": self.total_s, "targets": list(self.targets), "candidates": self.n_candidates,
+                "relative_ci95_before": dict(self.widths_before), "relative_ci95_after": dict(self.widths_after),
+                "correlation_before": dict(self.correlation_before),
+                "correlation_after": dict(self.correlation_after),
+                "picks": [p.to_dict() for p in self.picks], "notes": list(self.notes)}
+
+
+def sine_record_cost(limits: PlanLimits, f: float) -> tuple:
+    """(experiment time, measured samples) of one sine record, whole periods as the protocol runs it."""
+    periods = max(1, math.ceil(limits.measure_s * f - 1e-9))
+    settle = math.ceil(limits.settle_s * f - 1e-9) / f
+    return settle + periods / f, int(round(periods / f * limits.sample_rate_Hz))
+
+
+def _frequency_grid(params: MembraneParameters, limits: PlanLimits) -> np.ndarray:
+    """Geometric over the band plus 11 across 0.85-1.15 of the model's resonance (where it has one)."""
+    grid = list(np.geomspace(limits.min_frequency_Hz, limits.max_frequency_Hz, limits.n_frequencies))
+    try:
+        sweep = frequency_sweep(params, SinePeriodic(limits.max_voltage_V, 1.0),
+                                np.geomspace(max(limits.min_frequency_Hz, 1.0), limits.max_frequency_Hz, 30),
+                                n_harmonics=8, branch_switching=False, realised=False)
+        f_r = float(sweep.resonance_peak()["frequency_Hz"])
+    except (DeaRosError, ArithmeticError, ValueError, KeyError):
+        f_r = float("nan")
+    if math.isfinite(f_r):
+        grid += list(np.linspace(0.85, 1.15, 11) * f_r)
+    grid = [f for f in grid if limits.min_frequency_Hz <= f <= limits.max_frequency_Hz]
+    return np.array(sorted({round(float(f), 3) for f in grid}))
+
+
+def step_rest_s(params: MembraneParameters) -> float:
+    """Rest at 0 V before a step so it starts from rest as the step fit assumes: five creep times
+    eta1/k1, at least 2 s, at most 60 s (a step costs it too)."""
+    return float(min(max(5.0 * params.eta1_Pa_s / params.k1_Pa, 2.0), 60.0))
+
+
+def candidate_records(params: MembraneParameters, limits: PlanLimits | None = None) -> list:
+    """Every candidate within the limits: sines (amplitude x frequency, slew-limited: U w <= slew),
+    steps from 0 V, static points at the dynamic mass and at 0 V / full voltage on the other masses."""
+    limits = limits or PlanLimits()
+    umax = limits.max_voltage_V
+    out = []
+    shapes = [(a * umax, 0.0) for a in limits.amplitude_fractions]
+    if limits.offsets:
+        shapes.append((umax / 2, umax / 2))
+    for f in _frequency_grid(params, limits):
+        dur, n = sine_record_cost(limits, float(f))
+        for amp, off in shapes:
+            if amp * 2 * math.pi * f > limits.slew_rate_V_per_s:
+                continue
+            out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
+                                       measured_samples=n))
+    rest = step_rest_s(params)
+    for a in limits.step_fractions:
+        out.append(CandidateRecord("step", rest + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
+                                   final_V=float(a * umax)))
+    n_static = int(round(limits.static_measure_s * limits.sample_rate_Hz))
+    levels = [(params.mass_kg, a * umax) for a in limits.static_fractions]
+    levels += [(float(m), u) for m in limits.other_masses_kg for u in (0.0, umax)]
+    for m, u in levels:
+        out.append(CandidateRecord("static", limits.static_hold_s, float(m), voltage_V=float(u),
+                                   measured_samples=n_static))
+    return out
+
+
+def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits) -> JointObjective:
+    """The joint refinement's objective over this one record (the data are placeholders: only the
+    Jacobian is used), parametrised as the first fit."""
+    names = first.names
+    curvature = True if "sigma_h''(1)_Pa" in names else ("third" if "sigma_h'''(1)_Pa" in names else False)
+    slope = "sigma_h'(1)_Pa" in names
+    p = first.parameters
+    noise = first.laser_noise_m
+    static, steps, points, rms_sigma = None, [], [], []
+    if record.kind == "sine":
+        excitation = SinePeriodic(record.amplitude_V, record.frequency_Hz, record.offset_V) if record.offset_V \
+            else None
+        points = [FrequencyPoint(record.frequency_Hz, record.amplitude_V, 0.0, record.mass_kg, record.label(),
+                                 periodic_input=excitation)]
+        rms_sigma = [noise * math.sqrt(1.0 / max(record.measured_samples, 1) + 1.0 / limits.baseline_samples)]
+    elif record.kind == "step":
+        t = np.arange(0.0, limits.step_pre_s + limits.step_hold_s, 1.0 / limits.sample_rate_Hz)
+        u = np.where(t < limits.step_pre_s, 0.0, record.final_V)
+        steps = [StepData(t, u, np.zeros_like(t), record.mass_kg, "zoh", record.label())]
+    else:
+        static = StaticData(np.array([record.mass_kg]), np.array([record.voltage_V]), np.zeros(1), record.label())
+    static_sigma = first.static_sigma_m if math.isfinite(first.static_sigma_m) and first.static_sigma_m > 0 \
+        else noise / math.sqrt(max(record.measured_samples, 1))
+    obj = JointObjective(p, static, steps, points, static_sigma, [noise] * len(steps), rms_sigma,
+                         fit_curvature=curvature, fit_slope=slope)
+    if obj.names != first.names:
+        raise PlanningError(f"the candidate's parameters {obj.names} differ from the first fit's {first.names}")
+    return obj
+
+
+def candidate_information(first: FirstFit, candidates, limits: PlanLimits | None = None) -> tuple:
+    """([(candidate, G_c in relative units)], notes): the information each record adds (module docstring);
+    candidates whose model response cannot be computed are left out and named in the notes."""
+    limits = limits or PlanLimits()
+    scale = first.scale()
+    out, notes = [], []
+    for c in candidates:
+        try:
+            obj = _objective_for(first, c, limits)
+            jac = obj.physical_jacobian(obj.theta0()) * scale[None, :]
+        except PlanningError:
+            raise
+        except (DeaRosError, ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            notes.append(f"{c.label()}: left out ({exc})")
+            continue
+        if np.all(np.isfinite(jac)):
+            out.append((c, jac.T @ jac))
+        else:
+            notes.append(f"{c.label()}: left out (non-finite sensitivities)")
+    return out, notes
+
+
+def _widths(first: FirstFit, info_rel: np.ndarray) -> np.ndarray:
+    diag = inverse_diagonal(info_rel)
+    w = T95 * np.sqrt(first.variance_factor * np.where(np.isfinite(diag), diag, np.inf))
+    return np.where(np.isfinite(w), w, np.inf)
+
+
+def _criterion(widths: np.ndarray, idx, kind: str) -> float:
+    w = np.minimum(widths[idx], WIDTH_CAP)
+    return float(np.sum(np.log(w))) if kind == "widths" else float(np.sum(w ** 2))
+
+
+def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
+    out = {}
+    cov = np.linalg.pinv(info_rel, rcond=1e-13)
+    for a, b, label in (("eta1_Pa_s", "eta2_Pa_s", "eta1/eta2"), ("k1_Pa", "eta1_Pa_s", "k1/eta1"),
+                        ("eps_r", "sigma_h''(1)_Pa", "eps_r/sigma_h''(1)")):
+        if a in first.names and b in first.names:
+            i, j = first.names.index(a), first.names.index(b)
+            den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
+            out[label] = float(cov[i, j] / den) if den > 0 else float("nan")
+    return out
+
+
+def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits | None = None,
+                     candidates=None, targets=None, criterion: str = "widths", max_records: int = 12,
+                     information=None) -> ExperimentPlan:
+    """Greedy Fisher-information plan (module docstring): the records that shrink the target intervals
+    most per second of experiment time, within ``budget_s`` seconds. ``information``: precomputed
+    :func:`candidate_information` (then ``candidates`` is ignored)."""
+    if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s) and budget_s > 0):
+        raise PlanningError(f"budget_s must be a positive number of seconds, got {budget_s!r}")
+    if criterion not in ("widths", "A"):
+        raise PlanningError(f"criterion must be 'widths' or 'A', got {criterion!r}")
+    limits = limits or PlanLimits()
+    targets = tuple(n for n in (targets or DEFAULT_TARGETS) if n in first.names)
+    if not targets:
+        raise PlanningError(f"no target parameter is among the first fit's {first.names}")
+    idx = [first.names.index(n) for n in targets]
+    notes = [f"the first fit warned: {w}; the plan is linearised at that fit, which may be wrong: check it "
+             "(more data where it is doubtful, another start) before trusting the plan" for w in first.warnings]
+    if information is None:
+        cands = candidate_records(first.parameters, limits) if candidates is None else list(candidates)
+        information, left_out = candidate_information(first, cands, limits)
+        notes += left_out
+    if not information:
+        raise PlanningError("no candidate experiment within the limits could be evaluated")
+    scale = first.scale()
+    info = first.information * np.outer(scale, scale)
+    before = _widths(first, info)
+    picks, used, spent = [], set(), 0.0
+    current = _criterion(before, idx, criterion)
+    threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
+    while len(picks) < max_records:
+        best = None
+        for k, (c, g) in enumerate(information):
+            if k in used or spent + c.duration_s > budget_s + 1e-9:
+                continue
+            gain = current - _criterion(_widths(first, info + g), idx, criterion)
+            if gain > threshold and (best is None or gain / c.duration_s > best[0]):
+                best = (gain / c.duration_s, gain, k)
+        if best is None:
+            break
+        rate, gain, k = best
+        c, g = information[k]
+        info = info + g
+        used.add(k)
+        spent += c.duration_s
+        current -= gain
+        after = _widths(first, info)
+        picks.append(PlannedRecord(c, gain, rate, dict(zip(first.names, map(float, after)))))
+    after = _widths(first, info)
+    if not picks:
+        notes.append("no candidate within the budget shrinks the target intervals")
+    return ExperimentPlan(first.names, targets, criterion, float(budget_s), dict(zip(first.names, map(float, before))),
+                          dict(zip(first.names, map(float, after))),
+                          _correlations(first, first.information * np.outer(scale, scale)),
+                          _correlations(first, info), picks, len(information), first.source, notes)
+
+
+def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | None = None) -> Protocol:
+    """The planned records as a protocol the identifier node runs (the mass and membrane of ``base``):
+    steps from 0 V after a rest (:func:`step_rest_s`), static levels, sines grouped by amplitude and
+    offset, then 0 V. Static points at
+    another mass cannot be run without changing the mass by hand: they are left out (PlanningError if
+    nothing else is left)."""
+    limits = limits or PlanLimits()
+    segments = []
+    shapes: dict = {}
+    for p in plan.picks:
+        r = p.record
+        if r.kind == "sine":
+            shapes.setdefault((r.amplitude_V, r.offset_V), []).append(r.frequency_Hz)
+        elif r.kind == "step":
+            segments.append({"kind": "rest", "hold_s": r.duration_s - limits.step_pre_s - limits.step_hold_s})
+            segments.append({"kind": "step", "initial_V": 0.0, "final_V": r.final_V, "pre_s": limits.step_pre_s,
+                             "hold_s": limits.step_hold_s})
+        elif abs(r.mass_kg - base.mass_kg) < 1e-9:
+            segments.append({"kind": "static", "voltages_V": [r.voltage_V], "hold_s": limits.static_hold_s,
+                             "measure_s": limits.static_measure_s})
+    for (amp, off), freqs in shapes.items():
+        segments.append({"kind": "sine", "amplitude_V": amp, "offset_V": off, "frequencies_Hz": sorted(freqs),
+                         "settle_s": limits.settle_s, "measure_s": limits.measure_s})
+    if not segments:
+        raise PlanningError("no planned record can run at the protocol's mass")
+    segments.append({"kind": "rest", "hold_s": 1.0})
+    return Protocol.from_dict({"name": f"{base.name}-planned", "membrane": base.membrane, "mass_kg": base.mass_kg,
+                               "segments": segments}, source=f"{base.source} (planned second pass)")
