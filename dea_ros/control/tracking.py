@@ -163,6 +163,20 @@ class ModelTracker:
         self.psi = self.psi * a + (self.eps1 - f) * a * dt / tau
         self.eps1 = f + (self.eps1 - f) * a
 
+    def _move_creep_time(self, delta: float) -> None:
+        """Carry a change of ln tau into the creep state and its filtered term (first order along psi).
+
+        eps1 and the filtered k1 term are histories computed with the tracked tau: without this
+        correction a new tau acts only on the future and the estimate of tau lags its own update
+        (the creep state is part of the estimated model, as in an augmented-state EKF).
+        """
+        if delta == 0.0 or not self.terms:
+            return
+        self.eps1 += self.psi * delta
+        k_term, psi_term = self.terms[3], self.terms[4]
+        k_term.x += psi_term.x * delta
+        k_term.v += psi_term.v * delta
+
     def _regression(self):
         """(y, H, h(x)) of the normalised force balance: the filtered terms, inertia and damping at the filtered d."""
         m = self.model
@@ -186,7 +200,9 @@ class ModelTracker:
         K = PH / S
         innov = y - pred
         dx = np.clip(K * innov, -cfg.max_step, cfg.max_step)
-        self.x = np.clip(self.x + dx, self.lo, self.hi)
+        x_new = np.clip(self.x + dx, self.lo, self.hi)
+        self._move_creep_time(float(x_new[3] - self.x[3]))
+        self.x = x_new
         self.P = self.P - np.outer(K, PH)
         self.P = 0.5 * (self.P + self.P.T)
         diag = np.minimum(np.diag(self.P), self.P_max)          # the cap of the covariance
