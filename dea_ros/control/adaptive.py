@@ -5,8 +5,10 @@
 moved by more than ``retune_threshold`` since the model in use, retunes the controller in two
 steps, so that the slow part can run off the control loop (a node: in a worker thread):
 
-* :func:`prepare_retune` (slow: the gain design takes ~0.1 s): the inverse (eqs. 5, 20 with the
-  tracked parameters) and the feedback gains (pole placement on it, as at start-up);
+* :meth:`AdaptiveModel.prepare` (slow: ~0.1 s each): the windowed least squares of the last
+  samples (:mod:`.window_fit`: the tracker's EKF alone converges slowly on k1 and the creep time),
+  then :func:`prepare_retune`: the inverse (eqs. 5, 20 with the tracked parameters) and the
+  feedback gains (pole placement on it, as at start-up);
 * :func:`apply_retune` (fast): swaps them into the controller, bumpless -- the integrator absorbs
   the change of the feedforward at the current reference, so the command does not jump -- and
   keeps the reference, the strain integrator's state and the PID's state.
@@ -23,6 +25,7 @@ from .controller import ControlOutput, PositionController
 from .feedback import FeedbackGains, design_gains
 from .inverse import ModelInverse
 from .tracking import ModelTracker, TrackerConfig
+from .window_fit import WindowFit
 
 __all__ = ["RetunePlan", "prepare_retune", "apply_retune", "AdaptiveModel"]
 
@@ -32,9 +35,10 @@ class RetunePlan:
     """The controller's model parts for one set of parameters (built by :func:`prepare_retune`)."""
 
     params: MembraneParameters
-    inverse: ModelInverse
-    gains: FeedbackGains
+    inverse: ModelInverse | None     # None: nothing to retune (the fit is absorbed all the same)
+    gains: FeedbackGains | None
     ratios: dict
+    fit: WindowFit | None = None
 
 
 def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None) -> RetunePlan:
@@ -80,7 +84,7 @@ class AdaptiveModel:
     """Online tracking + retuning of one :class:`PositionController` (no ROS, no threads).
 
     Per sample: :meth:`observe` (after ``ctl.update``). :meth:`due` says when a retune should be
-    prepared (returns the tracked parameters); the caller runs :func:`prepare_retune` (here or in a
+    prepared (returns the window of samples to fit); the caller runs :meth:`prepare` (here or in a
     worker) and hands the plan to :meth:`apply`.
     """
 
@@ -104,20 +108,35 @@ class AdaptiveModel:
         if self.last_retune_s is None:
             self.last_retune_s = t_s
 
-    def due(self, t_s: float) -> MembraneParameters | None:
-        """The tracked parameters when a retune is due at t_s (and the reference is at rest), else None."""
+    def due(self, t_s: float):
+        """The window of samples (:meth:`ModelTracker.window`, or an empty tuple without one) when a retune
+        is due at t_s and the reference is at rest, else None (cheap: a copy of the buffer)."""
         if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
             return None
         state = self.ctl.state
         if state is not None and t_s <= state.trajectory.end_s:
             return None            # not while the reference moves: the next sample at rest
         self.last_retune_s = t_s
-        ratios = self.tracker.ratios
-        if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
-            return None
-        return self.tracker.tracked_parameters()
+        window = self.tracker.window()
+        return () if window is None else window
 
-    def apply(self, plan: RetunePlan, t_s: float) -> None:
+    def prepare(self, window) -> RetunePlan:
+        """Slow (run it off the control loop): the window's fit, and the retune when a ratio moved enough."""
+        fit = self.tracker.fit(window) if window is not None and len(window) else None
+        x = self.tracker.absorbed(fit)
+        params = self.tracker.tracked_parameters(x)
+        ratios = {k: v for k, v in zip(self.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
+        if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
+            return RetunePlan(params, None, None, ratios, fit)
+        plan = prepare_retune(self.ctl, params, ratios)
+        return RetunePlan(plan.params, plan.inverse, plan.gains, ratios, fit)
+
+    def apply(self, plan: RetunePlan | None, t_s: float) -> None:
+        if plan is None:
+            return
+        self.tracker.absorb(plan.fit)
+        if plan.inverse is None:
+            return
         apply_retune(self.ctl, plan, t_s)
         self.in_use = dict(plan.ratios)
         self.retunes += 1
@@ -125,8 +144,9 @@ class AdaptiveModel:
     def step(self, t_s: float, measured_m: float, out: ControlOutput) -> bool:
         """observe + (synchronously) prepare and apply a due retune: for simulations; True when retuned."""
         self.observe(t_s, measured_m, out)
-        params = self.due(t_s)
-        if params is None:
+        window = self.due(t_s)
+        if window is None:
             return False
-        self.apply(prepare_retune(self.ctl, params, self.tracker.ratios), t_s)
-        return True
+        before = self.retunes
+        self.apply(self.prepare(window), t_s)
+        return self.retunes > before

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model import DEAModel, MembraneParameters
+from .window_fit import WindowFit, WindowFitConfig, fit_window
 
 __all__ = ["TrackerConfig", "TrackedModel", "ModelTracker"]
 
@@ -60,6 +61,8 @@ class TrackerConfig:
     max_filtered_acceleration_m_per_s2: float = 0.05
     # the command acts on the membrane this many samples after it is computed (latency + amplifier update)
     voltage_delay_samples: int = 1
+    # the windowed least squares (window_fit.py) run at each retune; None: the EKF alone
+    window: WindowFitConfig | None = WindowFitConfig()
 
 
 @dataclass
@@ -115,6 +118,10 @@ class ModelTracker:
         self.scale = max(abs(params.k1_Pa) * 0.05, 1.0)       # stress scale of the residual, Pa
         self.enabled = True
         self._u_queue = [math.nan] * cfg.voltage_delay_samples
+        n = int(round(cfg.window.window_s / cfg.sample_period_s)) if cfg.window is not None else 0
+        self._buffer = np.zeros((3, n))          # d (m), applied voltage (V), saturated: the last window_s
+        self._count = 0
+        self.fits = 0
 
     # ------------------------------------------------------------- per sample
     def update(self, measured_m: float, voltage_V: float, saturated: bool = False) -> None:
@@ -138,6 +145,10 @@ class ModelTracker:
             self.terms = [_Filter(w, cfg.sample_period_s, 0.0) for _ in range(5)]
             for f, x in zip(self.terms, self._raw_terms(d, s, lam, voltage_V)):
                 f.x = x
+        if self._buffer.shape[1]:
+            j = self._count % self._buffer.shape[1]
+            self._buffer[0, j], self._buffer[1, j], self._buffer[2, j] = d, voltage_V, float(bool(saturated))
+            self._count += 1
         self._creep_step(lam - 1.0, cfg.sample_period_s)
         self.fd.step(d)
         for f, x in zip(self.terms, self._raw_terms(d, s, lam, voltage_V)):
@@ -215,6 +226,52 @@ class ModelTracker:
         self._last_h = H
         self._residual = (1 - a) * self._residual + a * innov * innov
 
+    # ------------------------------------------------------- windowed least squares
+    def window(self):
+        """A copy of the buffered samples, oldest first: (d m, applied voltage V, saturated) or None."""
+        n = self._buffer.shape[1]
+        if not n or self._count < n // 4 or not self.enabled:
+            return None
+        if self._count < n:
+            return self._buffer[:, :self._count].copy()
+        j = self._count % n
+        return np.concatenate((self._buffer[:, j:], self._buffer[:, :j]), axis=1)
+
+    def fit(self, window) -> WindowFit | None:
+        """The windowed least squares on a :meth:`window` (slow, ~0.1 s: run it off the control loop)."""
+        cfg = self.config
+        if window is None or cfg.window is None:
+            return None
+        return fit_window(self.model, self.scale, self.tau0_s, window[0], window[1], window[2] > 0.5,
+                          cfg.sample_period_s, cfg.filter_Hz, cfg.bounds,
+                          cfg.max_filtered_acceleration_m_per_s2, cfg.window)
+
+    def absorbed(self, fit: WindowFit | None) -> np.ndarray:
+        """The estimate after :meth:`absorb` (informative ratios only, bounded jump, physical bounds)."""
+        x = self.x.copy()
+        if fit is None:
+            return x
+        for i, (xi, ok, jump) in enumerate(zip(fit.x, fit.informative, self.config.window.max_jump)):
+            if ok:
+                x[i] = min(max(x[i] + min(max(xi - x[i], -jump), jump), self.lo[i]), self.hi[i])
+        return x
+
+    def absorb(self, fit: WindowFit | None) -> None:
+        """Move the estimate to the window's fit where it is informative; its error becomes the covariance."""
+        if fit is None or not any(fit.informative):
+            return
+        x = self.absorbed(fit)
+        if fit.informative[3]:
+            self._move_creep_time(float(x[3] - self.x[3]))
+            self.eps1 = fit.eps1_end
+        for i, ok in enumerate(fit.informative):
+            if ok:
+                self.P[i, :] = 0.0
+                self.P[:, i] = 0.0
+                self.P[i, i] = max(fit.std[i] ** 2, 1e-10)
+        self.x = x
+        self.fits += 1
+
     # ---------------------------------------------------------------- results
     @property
     def ratios(self) -> dict:
@@ -227,10 +284,11 @@ class ModelTracker:
         return TrackedModel(self.ratios, std, self.updates, self.skipped, math.sqrt(self._excitation),
                             math.sqrt(self._residual))
 
-    def tracked_parameters(self) -> MembraneParameters:
-        """The identified membrane with the tracked drift applied (eps_r, beta and gamma, k1, eta1)."""
+    def tracked_parameters(self, x=None) -> MembraneParameters:
+        """The identified membrane with the tracked drift (or estimate ``x``) applied (eps_r, beta and gamma, k1, eta1)."""
         p = self.params
-        r = self.ratios
+        r = self.ratios if x is None else dict(zip(NAMES, (float(x[0]), float(x[1]), float(x[2]),
+                                                            float(math.exp(x[3])))))
         k1 = p.k1_Pa * r["viscoelastic_stiffness"]
         return p.replace(name=f"{p.name} (tracked)",
                          relative_permittivity=p.relative_permittivity * r["electrostatic_gain"],
