@@ -17,11 +17,12 @@ steps, so that the slow part can run off the control loop (a node: in a worker t
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 from ..model import MembraneParameters
-from .controller import ControlOutput, PositionController
+from .controller import ControlOutput, ControllerConfig, PositionController
 from .feedback import FeedbackGains, design_gains
 from .inverse import ModelInverse
 from .tracking import ModelTracker, TrackerConfig
@@ -39,17 +40,33 @@ class RetunePlan:
     gains: FeedbackGains | None
     ratios: dict
     fit: WindowFit | None = None
+    config: ControllerConfig | None = None   # the controller's settings with the tracked loop delay
 
 
-def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None) -> RetunePlan:
-    """The inverse and the gains of ``ctl``'s configuration for ``params`` (slow; touches nothing of ctl)."""
-    cfg = ctl.config
+#: the robustness bound is relaxed by this factor when a measured loop delay admits no design at the configured one
+SENSITIVITY_RELAXATION = 1.3
+
+
+def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None,
+                   config: ControllerConfig | None = None) -> RetunePlan:
+    """The inverse and the gains for ``params`` with ``config`` (default ctl's) (slow; touches nothing of ctl).
+
+    An explicit ``config`` (the measured loop delay) for which no gains meet ``max_sensitivity``
+    is designed once more with the bound relaxed by :data:`SENSITIVITY_RELAXATION`.
+    """
+    cfg = config or ctl.config
     inverse = ModelInverse(params, cfg.max_voltage_V)
     lo, hi = inverse.reachable_range_m
     d_op = 0.5 * (lo + hi) if cfg.operating_point_m is None else float(cfg.operating_point_m)
-    gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
-                         cfg.max_noise_gain)
-    return RetunePlan(params, inverse, gains, dict(ratios or {}))
+    try:
+        gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
+                             cfg.max_noise_gain)
+    except ValueError:
+        if config is None:
+            raise
+        gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s,
+                             cfg.max_sensitivity * SENSITIVITY_RELAXATION, cfg.max_noise_gain)
+    return RetunePlan(params, inverse, gains, dict(ratios or {}), config=config)
 
 
 def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = None) -> None:
@@ -67,6 +84,8 @@ def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = 
         delta_ff = plan.inverse.dynamic_u2(d, v, a, eps1) - old_inverse.dynamic_u2(d, v, a, eps1)
     ctl.params = plan.params
     ctl.inverse = plan.inverse
+    if plan.config is not None:
+        ctl.config = plan.config               # the feedforward lead follows the loop delay
     ctl.max_voltage_V = min(ctl.config.max_voltage_V, plan.inverse.top_voltage_V)
     ctl.gains = plan.gains
     ctl.pid.gains = plan.gains
@@ -89,9 +108,12 @@ class AdaptiveModel:
     """
 
     def __init__(self, ctl: PositionController, config: TrackerConfig | None = None,
-                 retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True):
+                 retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True,
+                 delay_deadband_s: float = 0.3e-3):
         self.ctl = ctl
         self.identified = ctl.params
+        self.configured = ctl.config
+        self.delay_deadband_s = float(delay_deadband_s)
         self.tracker = ModelTracker(ctl.params, config)
         self.retune_period_s = float(retune_period_s)
         self.retune_threshold = float(retune_threshold)
@@ -126,10 +148,22 @@ class AdaptiveModel:
         x = self.tracker.absorbed(fit)
         params = self.tracker.tracked_parameters(x)
         ratios = {k: v for k, v in zip(self.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
-        if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
+        config = self.delay_config(self.tracker.absorbed_delay(fit))
+        if (max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold
+                and config.loop_delay_s == self.ctl.config.loop_delay_s):
             return RetunePlan(params, None, None, ratios, fit)
-        plan = prepare_retune(self.ctl, params, ratios)
-        return RetunePlan(plan.params, plan.inverse, plan.gains, ratios, fit)
+        try:
+            plan = prepare_retune(self.ctl, params, ratios, config)
+        except ValueError:          # no design even relaxed for the measured delay: the configured one
+            plan = prepare_retune(self.ctl, params, ratios, self.configured)
+        return dataclasses.replace(plan, fit=fit)
+
+    def delay_config(self, extra_delay_s: float) -> ControllerConfig:
+        """The configured settings, with the tracked extra loop delay once it exceeds the dead band."""
+        if abs(extra_delay_s) < self.delay_deadband_s:
+            return self.configured
+        return dataclasses.replace(self.configured,
+                                   loop_delay_s=max(self.configured.loop_delay_s + extra_delay_s, 0.0))
 
     def apply(self, plan: RetunePlan | None, t_s: float) -> None:
         if plan is None:

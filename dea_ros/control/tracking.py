@@ -122,6 +122,7 @@ class ModelTracker:
         self._buffer = np.zeros((3, n))          # d (m), applied voltage (V), saturated: the last window_s
         self._count = 0
         self.fits = 0
+        self.extra_delay_s = 0.0                 # loop delay beyond voltage_delay_samples (window fit)
 
     # ------------------------------------------------------------- per sample
     def update(self, measured_m: float, voltage_V: float, saturated: bool = False) -> None:
@@ -256,9 +257,19 @@ class ModelTracker:
                 x[i] = min(max(x[i] + min(max(xi - x[i], -jump), jump), self.lo[i]), self.hi[i])
         return x
 
+    def absorbed_delay(self, fit: WindowFit | None) -> float:
+        """The extra loop delay after :meth:`absorb` (moved only by an informative fit, inside the grid), s."""
+        if fit is None or not fit.delay_informative:
+            return self.extra_delay_s
+        lo, hi, _ = self.config.window.delay_grid_s
+        return min(max(fit.extra_delay_s, lo), hi)
+
     def absorb(self, fit: WindowFit | None) -> None:
         """Move the estimate to the window's fit where it is informative; its error becomes the covariance."""
-        if fit is None or not any(fit.informative):
+        if fit is None:
+            return
+        self.extra_delay_s = self.absorbed_delay(fit)
+        if not any(fit.informative):
             return
         x = self.absorbed(fit)
         if fit.informative[3]:

@@ -39,11 +39,15 @@ class WindowFitConfig:
     window_s: float = 10.0
     burn_in_s: float = 1.5            # the creep state starts relaxed: residuals from here on
     decimation: int = 10              # one residual every this many samples
-    grid_points: int = 41             # ln tau grid over the tracker's bounds
+    grid_points: int = 25             # ln tau grid over the tracker's bounds (refined by a parabola)
     max_gate_std: tuple = (0.004, 0.004, 0.03, 0.1)   # a ratio (ln tau) is informative below this error
     max_jump: tuple = (0.1, 0.1, 0.5, 1.5)            # largest move of an estimate per fit
     saturation_guard_s: float = 0.005  # residuals this close to a saturated sample are dropped
     correlation_factor: float = 4.0   # residual samples per independent one (the low-pass correlation)
+    # the loop delay beyond the tracker's voltage_delay_samples: a grid of extra delays, fitted on all
+    # samples (the moves carry the information); informative below the gate
+    delay_grid_s: tuple = (-0.5e-3, 3.0e-3, 0.25e-3)
+    max_delay_std_s: float = 0.2e-3
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,9 @@ class WindowFit:
     residual_rms: float       # normalised (stress scale of the tracker)
     points: int               # residuals used
     eps1_end: float           # the creep state at the window's end for the fitted tau
+    extra_delay_s: float = 0.0        # loop delay beyond the tracker's assumed one (voltage_delay_samples)
+    extra_delay_std_s: float = math.inf
+    delay_informative: bool = False
 
 
 def _lowpass_filters(w: float, dt: float):
@@ -125,7 +132,33 @@ def fit_window(model, scale_Pa: float, tau0_s: float, d_m, u_V, saturated, dt_s:
     x = (float(theta[0]), float(theta[1]), float(theta[2]), z)
     informative = tuple(bool(sd < gate) and math.isfinite(v) for sd, gate, v in zip(std, cfg.max_gate_std, x))
     a = math.exp(-dt_s / tau)
-    return WindowFit(x, tuple(std), informative, math.sqrt(sse_z / m), m, float(_creep(f, a)[-1]))
+    moves = use | (np.abs(af) >= max_acceleration)
+    moves[:int(cfg.burn_in_s / dt_s)] = False
+    delay, delay_std = _fit_delay(y, S, K, model.c2 * s, u, lp, scale_Pa, moves, dt_s, cfg)
+    return WindowFit(x, tuple(std), informative, math.sqrt(sse_z / m), m, float(_creep(f, a)[-1]),
+                     delay, delay_std, bool(delay_std < cfg.max_delay_std_s))
+
+
+def _fit_delay(y, S, K, c2s, u, lp, scale_Pa, use, dt_s, cfg):
+    """(extra delay s, its standard error s): the electrostatic term with the voltage shifted on a grid.
+
+    The moves (where the quasi-static fit does not look) carry the timing: a voltage applied later
+    than assumed shows as a residual during every move. The ratios are refitted at each delay.
+    """
+    lo, hi, step = cfg.delay_grid_s
+    grid = np.arange(lo, hi + 0.5 * step, step)
+    k = np.arange(u.size, dtype=float)
+    sse = np.array([_solve(y, _filt(lp, c2s * np.interp(k - delay / dt_s, k, u) ** 2) / scale_Pa, S, K, use)[1]
+                    for delay in grid])
+    j = int(np.argmin(sse))
+    if not 0 < j < grid.size - 1:
+        return float(grid[j]), math.inf
+    curv = (sse[j - 1] - 2.0 * sse[j] + sse[j + 1]) / (step * step)
+    if curv <= 0.0:
+        return float(grid[j]), math.inf
+    delay = float(np.clip(grid[j] - 0.5 * (sse[j + 1] - sse[j - 1]) / (step * curv), grid[j - 1], grid[j + 1]))
+    var = sse[j] / max(int(use.sum()) - 4, 1) * cfg.correlation_factor
+    return delay, math.sqrt(2.0 * var / curv)
 
 
 def _k_term(model, f, tau_s, dt_s, lp, scale_Pa):
