@@ -2,6 +2,7 @@
 drifted plants of the core's simulated rig within 10 s of ordinary operation (two membranes, two noise
 seeds), holds still without excitation, never leaves the physical bounds nor jumps by more than the
 bound per fit, and separates a gain change from a stiffness change."""
+import dataclasses
 import math
 
 import numpy as np
@@ -33,7 +34,7 @@ CASES = {
 
 
 def _operate(ident, plant, seconds, seed, levels=(0.3, 0.55, 0.75, 0.45, 0.65, 0.35, 0.6, 0.4, 0.7, 0.5),
-             hold_s=1.0, rest_after_s=math.inf, spy=None):
+             hold_s=1.0, rest_after_s=math.inf, spy=None, extra_delay_s=0.0):
     """Ordinary operation (a setpoint every hold_s, none after rest_after_s) with tracking and retuning as
     the node runs them; returns the AdaptiveModel. ``spy(t, plan)`` sees every prepared retune."""
     ctl = PositionController(ident, ControllerConfig(max_voltage_V=U_MAX, slew_rate_V_per_s=1e5))
@@ -41,6 +42,8 @@ def _operate(ident, plant, seconds, seed, levels=(0.3, 0.55, 0.75, 0.45, 0.65, 0
     lo, hi = ctl.reachable_range_m
     targets = [lo + f * (hi - lo) for f in levels]
     rig = SimulatedRig(plant, U_MAX, noise_m=1e-6, seed=seed)
+    rig = dataclasses.replace(rig, latency_s=rig.latency_s + extra_delay_s,
+                              amplifier_phase_s=rig.amplifier_phase_s + extra_delay_s)
     every = int(round(hold_s * 1000))
 
     def loop(t, d):
@@ -139,3 +142,18 @@ def test_the_window_buffer_keeps_the_last_window_in_order(rig_truth):
     # the applied voltage is the command of one sample ago (voltage_delay_samples = 1)
     assert np.array_equal(w[1], 1000.0 + np.arange(123 - 1, n + 123 - 1))
     assert np.all(np.diff(w[0]) > 0)
+
+
+@pytest.mark.parametrize("seed", [3, 8])
+def test_measures_an_unmodelled_loop_delay_and_designs_for_it(rig_truth, seed):
+    """The rig's command arrives 1 ms later than configured: the fit measures the extra delay (the
+    unchanged rig reads inside the dead band) and the retune moves the controller's loop delay, so
+    the feedforward lead and the gain design follow it."""
+    plain = _operate(rig_truth, rig_truth, 10.0, seed)
+    late = _operate(rig_truth, rig_truth, 10.0, seed, extra_delay_s=1e-3)
+    assert abs(plain.tracker.extra_delay_s) < plain.delay_deadband_s
+    assert plain.ctl.config.loop_delay_s == plain.configured.loop_delay_s
+    assert abs(late.tracker.extra_delay_s - plain.tracker.extra_delay_s - 1e-3) < 0.3e-3
+    moved = late.ctl.config.loop_delay_s - late.configured.loop_delay_s
+    assert abs(moved - late.tracker.extra_delay_s) < 1e-12 and moved > 0.6e-3
+    assert late.ctl.gains.loop_delay_s == pytest.approx(late.ctl.config.design_delay_s)
