@@ -296,10 +296,11 @@ class ModelTracker:
                             math.sqrt(self._residual))
 
     def tracked_parameters(self, x=None) -> MembraneParameters:
-        """The identified membrane with the tracked drift (or estimate ``x``) applied (eps_r, beta and gamma, k1, eta1)."""
+        """The identified membrane with the tracked drift (or the estimate ``x``) applied (eps_r, sigma_h, k1, eta1)."""
         p = self.params
-        r = self.ratios if x is None else dict(zip(NAMES, (float(x[0]), float(x[1]), float(x[2]),
-                                                            float(math.exp(x[3])))))
+        if x is None:
+            x = self.x
+        r = dict(zip(NAMES, (float(x[0]), float(x[1]), float(x[2]), float(math.exp(x[3])))))
         k1 = p.k1_Pa * r["viscoelastic_stiffness"]
         return p.replace(name=f"{p.name} (tracked)",
                          relative_permittivity=p.relative_permittivity * r["electrostatic_gain"],
