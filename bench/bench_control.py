@@ -555,7 +555,8 @@ def main() -> None:
                   f"{r['delay']}; lockstep timeouts: {r['lockstep_timeouts']}."]
         args.timing_s = 0
     elif args.drift_only:
-        from bench_drift import drift_lines
+        from bench_drift import callback_cost_lines, drift_lines
+        lines += callback_cost_lines(ident, cfg, rig0)
         lines += drift_lines(ident, params_file, cfg, rig0)
         args.timing_s = 0
     elif not args.timing_only:

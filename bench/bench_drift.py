@@ -34,7 +34,7 @@ from dea_ros.control import (
     run_closed_loop,
 )
 
-__all__ = ["drift_cases", "drift_lines"]
+__all__ = ["drift_cases", "drift_lines", "callback_cost_lines"]
 
 WARMUP_S = 10.0
 STEP_M = 40e-6
@@ -120,7 +120,7 @@ def _first_warning(ident, plant, cfg, rig0, seconds, seed):
         if k % 1500 == 0:
             ctl.set_setpoint(t, float(targets[k // 1500]))
         out = ctl.update(t, d)
-        ad.observe(t, d, out)
+        ad.step(t, d, out)              # as the node: tracking, the window fit and the retunes
         if k % 1000 == 0:
             rep = mon.assess(t, ad.tracker.ratios)
             if rep.level >= 1:
@@ -167,3 +167,55 @@ def drift_lines(ident, params_file, cfg, rig0, quiet_s=600.0, seed=7) -> list:
                  f"{found[0][1] if found else 'none'} |")
     lines += ["", f"({time.perf_counter() - t_start:.0f} s wall for this section.)"]
     return lines
+
+
+def callback_cost_lines(ident, cfg, rig0, seconds=30.0, seed=7) -> list:
+    """Per-sample cost in the 1 kHz control callback: ctl.update, and the tracker's share (AdaptiveModel
+    observe + due, as ControllerHealth.observe runs them); the window fit + retune design off the loop."""
+    plant = ident.replace(relative_permittivity=ident.relative_permittivity * 0.94)
+    ctl = PositionController(ident, cfg)
+    ad = AdaptiveModel(ctl, enabled=True)
+    mon = HealthMonitor()
+    lo, hi = ctl.reachable_range_m
+    rng = np.random.default_rng(seed)
+    targets = lo + (0.25 + 0.5 * rng.random(int(seconds) + 2)) * (hi - lo)
+    t_ctl, t_track, t_prepare, t_assess = [], [], [], []
+    clock = time.perf_counter_ns
+
+    def loop(t, d):
+        if not ctl.started:
+            ctl.start(t, d)
+        k = int(round(t * 1000))
+        if k % 1000 == 0:
+            ctl.set_setpoint(t, float(targets[k // 1000]))
+        t0 = clock()
+        out = ctl.update(t, d)
+        t1 = clock()
+        ad.observe(t, d, out)
+        window = ad.due(t)
+        t2 = clock()
+        t_ctl.append(t1 - t0)
+        t_track.append(t2 - t1)
+        if window is not None:
+            t3 = clock()
+            ad.apply(ad.prepare(window), t)
+            t_prepare.append(clock() - t3)
+        if k % 1000 == 0:
+            t3 = clock()
+            mon.assess(t, ad.tracker.ratios)
+            t_assess.append(clock() - t3)
+        return out.voltage_V
+
+    run_closed_loop(dataclasses.replace(rig0, params=plant, seed=seed), loop, seconds,
+                    initial_voltage_V=_u0(plant, cfg, float(targets[0])))
+    q = lambda xs: " / ".join(f"{v / 1e3:.0f}" for v in np.percentile(xs, [50, 99, 99.9]))  # noqa: E731
+    both = np.asarray(t_ctl) + np.asarray(t_track)
+    return [f"Per-sample cost in the control callback ({len(t_ctl)} samples of {seconds:g} s closed loop on the "
+            "eps_r -6 % plant, tracking on, simulated rig in the same process; time.perf_counter_ns):", "",
+            "| part | p50 / p99 / p99.9 [us] |", "|---|---|",
+            f"| ctl.update (controller alone) | {q(t_ctl)} |",
+            f"| tracker in the callback (AdaptiveModel.observe + due: EKF, window buffer) | {q(t_track)} |",
+            f"| both (the callback's physics) | {q(both)} |",
+            f"| health assess (1 Hz diagnostics timer, not per sample) | {q(t_assess)} |",
+            "| off the loop: window fit + retune design (worker thread), per retune, ms | "
+            + " / ".join(f"{v / 1e6:.0f}" for v in np.percentile(t_prepare, [50, 99, 99.9])) + " |", ""]

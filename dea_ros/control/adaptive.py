@@ -5,8 +5,10 @@
 moved by more than ``retune_threshold`` since the model in use, retunes the controller in two
 steps, so that the slow part can run off the control loop (a node: in a worker thread):
 
-* :func:`prepare_retune` (slow: the gain design takes ~0.1 s): the inverse (eqs. 5, 20 with the
-  tracked parameters) and the feedback gains (pole placement on it, as at start-up);
+* :meth:`AdaptiveModel.prepare` (slow: ~0.1 s each): the windowed least squares of the last
+  samples (:mod:`.window_fit`: the tracker's EKF alone converges slowly on k1 and the creep time),
+  then :func:`prepare_retune`: the inverse (eqs. 5, 20 with the tracked parameters) and the
+  feedback gains (pole placement on it, as at start-up);
 * :func:`apply_retune` (fast): swaps them into the controller, bumpless -- the integrator absorbs
   the change of the feedforward at the current reference, so the command does not jump -- and
   keeps the reference, the strain integrator's state and the PID's state.
@@ -15,14 +17,16 @@ steps, so that the slow part can run off the control loop (a node: in a worker t
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 from ..model import MembraneParameters
-from .controller import ControlOutput, PositionController
+from .controller import ControlOutput, ControllerConfig, PositionController
 from .feedback import FeedbackGains, design_gains
 from .inverse import ModelInverse
 from .tracking import ModelTracker, TrackerConfig
+from .window_fit import WindowFit
 
 __all__ = ["RetunePlan", "prepare_retune", "apply_retune", "AdaptiveModel"]
 
@@ -32,20 +36,37 @@ class RetunePlan:
     """The controller's model parts for one set of parameters (built by :func:`prepare_retune`)."""
 
     params: MembraneParameters
-    inverse: ModelInverse
-    gains: FeedbackGains
+    inverse: ModelInverse | None     # None: nothing to retune (the fit is absorbed all the same)
+    gains: FeedbackGains | None
     ratios: dict
+    fit: WindowFit | None = None
+    config: ControllerConfig | None = None   # the controller's settings with the tracked loop delay
 
 
-def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None) -> RetunePlan:
-    """The inverse and the gains of ``ctl``'s configuration for ``params`` (slow; touches nothing of ctl)."""
-    cfg = ctl.config
+#: the robustness bound is relaxed by this factor when a measured loop delay admits no design at the configured one
+SENSITIVITY_RELAXATION = 1.3
+
+
+def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: dict | None = None,
+                   config: ControllerConfig | None = None) -> RetunePlan:
+    """The inverse and the gains for ``params`` with ``config`` (default ctl's) (slow; touches nothing of ctl).
+
+    An explicit ``config`` (the measured loop delay) for which no gains meet ``max_sensitivity``
+    is designed once more with the bound relaxed by :data:`SENSITIVITY_RELAXATION`.
+    """
+    cfg = config or ctl.config
     inverse = ModelInverse(params, cfg.max_voltage_V)
     lo, hi = inverse.reachable_range_m
     d_op = 0.5 * (lo + hi) if cfg.operating_point_m is None else float(cfg.operating_point_m)
-    gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
-                         cfg.max_noise_gain)
-    return RetunePlan(params, inverse, gains, dict(ratios or {}))
+    try:
+        gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
+                             cfg.max_noise_gain)
+    except ValueError:
+        if config is None:
+            raise
+        gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s,
+                             cfg.max_sensitivity * SENSITIVITY_RELAXATION, cfg.max_noise_gain)
+    return RetunePlan(params, inverse, gains, dict(ratios or {}), config=config)
 
 
 def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = None) -> None:
@@ -63,6 +84,8 @@ def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = 
         delta_ff = plan.inverse.dynamic_u2(d, v, a, eps1) - old_inverse.dynamic_u2(d, v, a, eps1)
     ctl.params = plan.params
     ctl.inverse = plan.inverse
+    if plan.config is not None:
+        ctl.config = plan.config               # the feedforward lead follows the loop delay
     ctl.max_voltage_V = min(ctl.config.max_voltage_V, plan.inverse.top_voltage_V)
     ctl.gains = plan.gains
     ctl.pid.gains = plan.gains
@@ -80,14 +103,17 @@ class AdaptiveModel:
     """Online tracking + retuning of one :class:`PositionController` (no ROS, no threads).
 
     Per sample: :meth:`observe` (after ``ctl.update``). :meth:`due` says when a retune should be
-    prepared (returns the tracked parameters); the caller runs :func:`prepare_retune` (here or in a
+    prepared (returns the window of samples to fit); the caller runs :meth:`prepare` (here or in a
     worker) and hands the plan to :meth:`apply`.
     """
 
     def __init__(self, ctl: PositionController, config: TrackerConfig | None = None,
-                 retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True):
+                 retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True,
+                 delay_deadband_s: float = 0.3e-3):
         self.ctl = ctl
         self.identified = ctl.params
+        self.configured = ctl.config
+        self.delay_deadband_s = float(delay_deadband_s)
         self.tracker = ModelTracker(ctl.params, config)
         self.retune_period_s = float(retune_period_s)
         self.retune_threshold = float(retune_threshold)
@@ -104,20 +130,47 @@ class AdaptiveModel:
         if self.last_retune_s is None:
             self.last_retune_s = t_s
 
-    def due(self, t_s: float) -> MembraneParameters | None:
-        """The tracked parameters when a retune is due at t_s (and the reference is at rest), else None."""
+    def due(self, t_s: float):
+        """The window of samples (:meth:`ModelTracker.window`, or an empty tuple without one) when a retune
+        is due at t_s and the reference is at rest, else None (cheap: a copy of the buffer)."""
         if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
             return None
         state = self.ctl.state
         if state is not None and t_s <= state.trajectory.end_s:
             return None            # not while the reference moves: the next sample at rest
         self.last_retune_s = t_s
-        ratios = self.tracker.ratios
-        if max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold:
-            return None
-        return self.tracker.tracked_parameters()
+        window = self.tracker.window()
+        return () if window is None else window
 
-    def apply(self, plan: RetunePlan, t_s: float) -> None:
+    def prepare(self, window) -> RetunePlan:
+        """Slow (run it off the control loop): the window's fit, and the retune when a ratio moved enough."""
+        fit = self.tracker.fit(window) if window is not None and len(window) else None
+        x = self.tracker.absorbed(fit)
+        params = self.tracker.tracked_parameters(x)
+        ratios = {k: v for k, v in zip(self.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
+        config = self.delay_config(self.tracker.absorbed_delay(fit))
+        if (max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold
+                and config.loop_delay_s == self.ctl.config.loop_delay_s):
+            return RetunePlan(params, None, None, ratios, fit)
+        try:
+            plan = prepare_retune(self.ctl, params, ratios, config)
+        except ValueError:          # no design even relaxed for the measured delay: the configured one
+            plan = prepare_retune(self.ctl, params, ratios, self.configured)
+        return dataclasses.replace(plan, fit=fit)
+
+    def delay_config(self, extra_delay_s: float) -> ControllerConfig:
+        """The configured settings, with the tracked extra loop delay once it exceeds the dead band."""
+        if abs(extra_delay_s) < self.delay_deadband_s:
+            return self.configured
+        return dataclasses.replace(self.configured,
+                                   loop_delay_s=max(self.configured.loop_delay_s + extra_delay_s, 0.0))
+
+    def apply(self, plan: RetunePlan | None, t_s: float) -> None:
+        if plan is None:
+            return
+        self.tracker.absorb(plan.fit)
+        if plan.inverse is None:
+            return
         apply_retune(self.ctl, plan, t_s)
         self.in_use = dict(plan.ratios)
         self.retunes += 1
@@ -125,8 +178,9 @@ class AdaptiveModel:
     def step(self, t_s: float, measured_m: float, out: ControlOutput) -> bool:
         """observe + (synchronously) prepare and apply a due retune: for simulations; True when retuned."""
         self.observe(t_s, measured_m, out)
-        params = self.due(t_s)
-        if params is None:
+        window = self.due(t_s)
+        if window is None:
             return False
-        self.apply(prepare_retune(self.ctl, params, self.tracker.ratios), t_s)
-        return True
+        before = self.retunes
+        self.apply(self.prepare(window), t_s)
+        return self.retunes > before

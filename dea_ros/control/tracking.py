@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model import DEAModel, MembraneParameters
+from .window_fit import WindowFit, WindowFitConfig, fit_window
 
 __all__ = ["TrackerConfig", "TrackedModel", "ModelTracker"]
 
@@ -60,6 +61,8 @@ class TrackerConfig:
     max_filtered_acceleration_m_per_s2: float = 0.05
     # the command acts on the membrane this many samples after it is computed (latency + amplifier update)
     voltage_delay_samples: int = 1
+    # the windowed least squares (window_fit.py) run at each retune; None: the EKF alone
+    window: WindowFitConfig | None = WindowFitConfig()
 
 
 @dataclass
@@ -115,6 +118,11 @@ class ModelTracker:
         self.scale = max(abs(params.k1_Pa) * 0.05, 1.0)       # stress scale of the residual, Pa
         self.enabled = True
         self._u_queue = [math.nan] * cfg.voltage_delay_samples
+        n = int(round(cfg.window.window_s / cfg.sample_period_s)) if cfg.window is not None else 0
+        self._buffer = np.zeros((3, n))          # d (m), applied voltage (V), saturated: the last window_s
+        self._count = 0
+        self.fits = 0
+        self.extra_delay_s = 0.0                 # loop delay beyond voltage_delay_samples (window fit)
 
     # ------------------------------------------------------------- per sample
     def update(self, measured_m: float, voltage_V: float, saturated: bool = False) -> None:
@@ -138,6 +146,10 @@ class ModelTracker:
             self.terms = [_Filter(w, cfg.sample_period_s, 0.0) for _ in range(5)]
             for f, x in zip(self.terms, self._raw_terms(d, s, lam, voltage_V)):
                 f.x = x
+        if self._buffer.shape[1]:
+            j = self._count % self._buffer.shape[1]
+            self._buffer[0, j], self._buffer[1, j], self._buffer[2, j] = d, voltage_V, float(bool(saturated))
+            self._count += 1
         self._creep_step(lam - 1.0, cfg.sample_period_s)
         self.fd.step(d)
         for f, x in zip(self.terms, self._raw_terms(d, s, lam, voltage_V)):
@@ -163,6 +175,20 @@ class ModelTracker:
         self.psi = self.psi * a + (self.eps1 - f) * a * dt / tau
         self.eps1 = f + (self.eps1 - f) * a
 
+    def _move_creep_time(self, delta: float) -> None:
+        """Carry a change of ln tau into the creep state and its filtered term (first order along psi).
+
+        eps1 and the filtered k1 term are histories computed with the tracked tau: without this
+        correction a new tau acts only on the future and the estimate of tau lags its own update
+        (the creep state is part of the estimated model, as in an augmented-state EKF).
+        """
+        if delta == 0.0 or not self.terms:
+            return
+        self.eps1 += self.psi * delta
+        k_term, psi_term = self.terms[3], self.terms[4]
+        k_term.x += psi_term.x * delta
+        k_term.v += psi_term.v * delta
+
     def _regression(self):
         """(y, H, h(x)) of the normalised force balance: the filtered terms, inertia and damping at the filtered d."""
         m = self.model
@@ -186,7 +212,9 @@ class ModelTracker:
         K = PH / S
         innov = y - pred
         dx = np.clip(K * innov, -cfg.max_step, cfg.max_step)
-        self.x = np.clip(self.x + dx, self.lo, self.hi)
+        x_new = np.clip(self.x + dx, self.lo, self.hi)
+        self._move_creep_time(float(x_new[3] - self.x[3]))
+        self.x = x_new
         self.P = self.P - np.outer(K, PH)
         self.P = 0.5 * (self.P + self.P.T)
         diag = np.minimum(np.diag(self.P), self.P_max)          # the cap of the covariance
@@ -198,6 +226,62 @@ class ModelTracker:
             self._excitation = (1 - a) * self._excitation + a * float(np.sum((H - self._last_h) ** 2))
         self._last_h = H
         self._residual = (1 - a) * self._residual + a * innov * innov
+
+    # ------------------------------------------------------- windowed least squares
+    def window(self):
+        """A copy of the buffered samples, oldest first: (d m, applied voltage V, saturated) or None."""
+        n = self._buffer.shape[1]
+        if not n or self._count < n // 4 or not self.enabled:
+            return None
+        if self._count < n:
+            return self._buffer[:, :self._count].copy()
+        j = self._count % n
+        return np.concatenate((self._buffer[:, j:], self._buffer[:, :j]), axis=1)
+
+    def fit(self, window) -> WindowFit | None:
+        """The windowed least squares on a :meth:`window` (slow, ~0.1 s: run it off the control loop)."""
+        cfg = self.config
+        if window is None or cfg.window is None:
+            return None
+        return fit_window(self.model, self.scale, self.tau0_s, window[0], window[1], window[2] > 0.5,
+                          cfg.sample_period_s, cfg.filter_Hz, cfg.bounds,
+                          cfg.max_filtered_acceleration_m_per_s2, cfg.window)
+
+    def absorbed(self, fit: WindowFit | None) -> np.ndarray:
+        """The estimate after :meth:`absorb` (informative ratios only, bounded jump, physical bounds)."""
+        x = self.x.copy()
+        if fit is None:
+            return x
+        for i, (xi, ok, jump) in enumerate(zip(fit.x, fit.informative, self.config.window.max_jump)):
+            if ok:
+                x[i] = min(max(x[i] + min(max(xi - x[i], -jump), jump), self.lo[i]), self.hi[i])
+        return x
+
+    def absorbed_delay(self, fit: WindowFit | None) -> float:
+        """The extra loop delay after :meth:`absorb` (moved only by an informative fit, inside the grid), s."""
+        if fit is None or not fit.delay_informative:
+            return self.extra_delay_s
+        lo, hi, _ = self.config.window.delay_grid_s
+        return min(max(fit.extra_delay_s, lo), hi)
+
+    def absorb(self, fit: WindowFit | None) -> None:
+        """Move the estimate to the window's fit where it is informative; its error becomes the covariance."""
+        if fit is None:
+            return
+        self.extra_delay_s = self.absorbed_delay(fit)
+        if not any(fit.informative):
+            return
+        x = self.absorbed(fit)
+        if fit.informative[3]:
+            self._move_creep_time(float(x[3] - self.x[3]))
+            self.eps1 = fit.eps1_end
+        for i, ok in enumerate(fit.informative):
+            if ok:
+                self.P[i, :] = 0.0
+                self.P[:, i] = 0.0
+                self.P[i, i] = max(fit.std[i] ** 2, 1e-10)
+        self.x = x
+        self.fits += 1
 
     # ---------------------------------------------------------------- results
     @property
@@ -211,10 +295,12 @@ class ModelTracker:
         return TrackedModel(self.ratios, std, self.updates, self.skipped, math.sqrt(self._excitation),
                             math.sqrt(self._residual))
 
-    def tracked_parameters(self) -> MembraneParameters:
-        """The identified membrane with the tracked drift applied (eps_r, beta and gamma, k1, eta1)."""
+    def tracked_parameters(self, x=None) -> MembraneParameters:
+        """The identified membrane with the tracked drift (or the estimate ``x``) applied (eps_r, sigma_h, k1, eta1)."""
         p = self.params
-        r = self.ratios
+        if x is None:
+            x = self.x
+        r = dict(zip(NAMES, (float(x[0]), float(x[1]), float(x[2]), float(math.exp(x[3])))))
         k1 = p.k1_Pa * r["viscoelastic_stiffness"]
         return p.replace(name=f"{p.name} (tracked)",
                          relative_permittivity=p.relative_permittivity * r["electrostatic_gain"],

@@ -18,7 +18,6 @@ from ..control import (
     ModelTracker,
     PredictionErrorStats,
     TrackerConfig,
-    prepare_retune,
 )
 from .common import declare_bool, declare_float
 
@@ -73,9 +72,9 @@ class ControllerHealth:
             plan, self.pending = self.pending.result(), None
             adaptive.apply(plan, t_s)
         elif self.pending is None:
-            params = adaptive.due(t_s)
-            if params is not None:
-                self.pending = self.worker.submit(prepare_retune, adaptive.ctl, params, adaptive.tracker.ratios)
+            window = adaptive.due(t_s)
+            if window is not None:
+                self.pending = self.worker.submit(adaptive.prepare, window)
 
     def status(self, t_s: float, reference_m: float | None):
         """(level byte, message, values) for /diagnostics."""
