@@ -498,14 +498,23 @@ class AmplifierNode(LifecycleNode):
         first_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         verdict = self.batch_queue.offer(first_s, offsets, values, self.last_sim_s,
                                          self.controller.is_activated and self.gain_check is None)
-        now_ns = self.get_clock().now().nanoseconds
-        # acknowledged up to the update before the last sample's: the sender's next batch is for that one
-        ack_ns = now_ns if not verdict else max(now_ns, int(round(verdict.last_sample_s * 1e9))
-                                                - int(round(self.update_period_s * 1e9)))
         if self.received_pub is not None:
-            self.received_pub.publish(Header(stamp=Time(nanoseconds=ack_ns).to_msg(), frame_id=self.get_name()))
+            self.received_pub.publish(Header(stamp=Time(nanoseconds=self._batch_ack_ns(first_s, len(msg.points)))
+                                             .to_msg(), frame_id=self.get_name()))
         if not verdict:
-            self._log_rejection(f"voltage_cmd_batch of {len(msg.points)} samples", verdict.reason)
+            self._log_rejection(f"voltage_cmd_batch of {len(msg.points)} samples for t = {first_s:.6f} s "
+                                f"(last update {self.last_sim_s:.6f} s)", verdict.reason)
+
+    def _batch_ack_ns(self, first_s: float, n_points: int) -> int:
+        """The acknowledgement of a batch, ns: the update before its last sample's, counted from the update
+        it was sent for (at most the next one), whether it was accepted or not. A refused batch counts as
+        that many refused single commands, each of which is acknowledged too: the lockstep goes on (nothing
+        of it is applied) and a sender one update late (a race at start-up) is back in step with its next
+        batch. The acknowledgement paces the simulation only; it never moves the output."""
+        n_updates = min(max(n_points, 1), self.batch_queue.max_length)
+        next_s = self.last_sim_s + self.update_period_s
+        base_s = min(first_s, next_s) if math.isfinite(first_s) else next_s
+        return max(0, int(round((base_s + (n_updates - 2) * self.update_period_s) * 1e9)))
 
     def on_update(self, source: str = "update") -> None:
         if self.controller is None or self.backend is None or not self.backend.is_open or self._shutting_down:

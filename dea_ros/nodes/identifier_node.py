@@ -442,6 +442,10 @@ class IdentifierNode(Node):
         period_ns = int(round(1e9 * period))
         if self.batch_end_ns is not None and now_ns < self.batch_end_ns - period_ns // 2:
             return  # the amplifier still holds commands up to batch_end_ns
+        if now_ns < self.now_ns() - period_ns // 2:  # a late trigger (the clock ran on): not for a batch
+            self.batch_end_ns = None
+            self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + period))))
+            return
         batch = JointTrajectory(joint_names=["dea_voltage"])
         batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
         for i in range(self.command_batch):  # the command the tick at t + i periods would send

@@ -159,7 +159,7 @@ def test_batch_attacks_from_another_process_never_pass_the_limits(ros_context):
         for batch in ([1000.0] * (MAX_BATCH + 1), [1000.0] * 80):
             master.send(batch)
             _assert_nothing_applied(master, 5)
-        for first_s in (master.t, master.t - 1.0, master.t + 3 * PERIOD):
+        for first_s in (master.t, master.t - 1.0, master.t + 3 * PERIOD, -5.0):
             master.send([1000.0] * 10, first_s=first_s)
             _assert_nothing_applied(master, 5)
         master.send([1000.0] * 3, offsets=[0.0, 0.0, 0.0])
