@@ -6,7 +6,7 @@
    flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.identify.protocols`) at
    ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
    and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
-3. Records every rig topic (``voltage_cmd``, ``voltage``, ``displacement``,
+3. Records every rig topic (``voltage_cmd``, ``voltage_cmd_batch``, ``voltage``, ``displacement``,
    ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
    offered by each of its publishers discovered when its first message arrives (one profile per
@@ -442,10 +442,8 @@ class IdentifierNode(Node):
         period_ns = int(round(1e9 * period))
         if self.batch_end_ns is not None and now_ns < self.batch_end_ns - period_ns // 2:
             return  # the amplifier still holds commands up to batch_end_ns
-        if now_ns < self.now_ns() - period_ns // 2:  # a late trigger (the clock ran on): not for a batch
-            self.batch_end_ns = None
-            self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + period))))
-            return
+        late = max(0, round((self.now_ns() - now_ns) / period_ns))  # the clock ran on past the trigger (start)
+        now_ns, t = now_ns + late * period_ns, t + late * period     # aim at the update after the clock's
         batch = JointTrajectory(joint_names=["dea_voltage"])
         batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
         for i in range(self.command_batch):  # the command the tick at t + i periods would send
