@@ -9,8 +9,11 @@ identification, and measures from the identifier's log:
 * after the protocol (the identifier exits; the rest of the rig stays up unless the demo's
   shutdown is asked for) every remaining process's CPU over ``--idle-s`` -> % of a core.
 
-Run: python bench/bench_lockstep.py [--protocol paper] [--speed 3] [--idle-s 10] [--repeat 1]
-Prints a Markdown table (machine and load average included).
+``--batch 1,25`` runs identifier_node with ``command_batch`` 1 and 25 in turn (each repeat runs every
+value, side by side) and prints the median speed and CPU per tick of each.
+
+Run: python bench/bench_lockstep.py [--protocol paper] [--speed 3] [--idle-s 10] [--repeat 1] [--batch 1,25]
+Prints one line per run and the medians (machine and load average included).
 """
 from __future__ import annotations
 
@@ -113,7 +116,8 @@ def main() -> None:
         rows.append(r)
         cpu = ", ".join(f"{n.replace('_node', '')} {v:.2f}" for n, v in r["cpu_ms_per_tick"].items())
         idle = ", ".join(f"{n.replace('_node', '')} {v:.1f} %" for n, v in r["idle_pct"].items())
-        print(f"run {k + 1}, K = {batch}: {r['sim_s']:.1f} s simulated in {r['wall_s']:.1f} s wall = x{r['speed']:.2f}; "
+        print(f"run {k + 1}, K = {batch}: {r['sim_s']:.1f} s simulated in {r['wall_s']:.1f} s wall = "
+              f"x{r['speed']:.2f}; "
               f"{r['wall_ms_per_tick']:.2f} ms wall per tick; CPU ms per tick: {cpu}; idle CPU: {idle}; "
               f"load {r['load'][0][0]:.1f} -> {r['load'][1][0]:.1f}", flush=True)
     for batch in batches:

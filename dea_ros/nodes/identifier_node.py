@@ -442,8 +442,6 @@ class IdentifierNode(Node):
         period_ns = int(round(1e9 * period))
         if self.batch_end_ns is not None and now_ns < self.batch_end_ns - period_ns // 2:
             return  # the amplifier still holds commands up to batch_end_ns
-        late = max(0, round((self.now_ns() - now_ns) / period_ns))  # the clock ran on past the trigger (start)
-        now_ns, t = now_ns + late * period_ns, t + late * period     # aim at the update after the clock's
         batch = JointTrajectory(joint_names=["dea_voltage"])
         batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
         for i in range(self.command_batch):  # the command the tick at t + i periods would send

@@ -44,8 +44,8 @@ def test_an_accepted_batch_gives_one_sample_per_update_in_order():
     (math.nan, _offsets(2), [1.0] * 2, T0, True, "stale"),
     (T0 + PERIOD, _offsets(2), [1.0] * 2, None, True, "stale"),
 ])
-def test_a_refused_batch_queues_nothing_and_empties_the_queue(first_s, offsets, values, last_update_s, activated,
-                                                             reason):
+def test_a_refused_batch_queues_nothing_and_empties_the_queue(first_s, offsets, values, last_update_s,
+                                                              activated, reason):
     q = _queue()
     assert q.offer(T0 + PERIOD, _offsets(3), [5.0] * 3, last_update_s=T0, activated=True)
     verdict = q.offer(first_s, offsets, values, last_update_s, activated)
