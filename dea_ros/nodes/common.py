@@ -39,8 +39,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from sensor_msgs.msg import BatteryState, Range
 
 __all__ = [
-    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE_CMD_BATCH", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_IMPLAUSIBLE",
-    "TOPIC_DISPLACEMENT_PREDICTED",
+    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE_CMD_BATCH", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT",
+    "TOPIC_DISPLACEMENT_IMPLAUSIBLE", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
     "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
 ]
