@@ -9,8 +9,11 @@ identification, and measures from the identifier's log:
 * after the protocol (the identifier exits; the rest of the rig stays up unless the demo's
   shutdown is asked for) every remaining process's CPU over ``--idle-s`` -> % of a core.
 
-Run: python bench/bench_lockstep.py [--protocol paper] [--speed 3] [--idle-s 10] [--repeat 1]
-Prints a Markdown table (machine and load average included).
+``--batch 1,25`` runs identifier_node with ``command_batch`` 1 and 25 in turn (each repeat runs every
+value, side by side) and prints the median speed and CPU per tick of each.
+
+Run: python bench/bench_lockstep.py [--protocol paper] [--speed 3] [--idle-s 10] [--repeat 1] [--batch 1,25]
+Prints one line per run and the medians (machine and load average included).
 """
 from __future__ import annotations
 
@@ -52,7 +55,7 @@ def wait_for_line(path: Path, needle: str, timeout_s: float, proc=None) -> float
     return None
 
 
-def run_once(args, run_dir: Path) -> dict:
+def run_once(args, run_dir: Path, batch: int = 1) -> dict:
     rig = RigProcesses(namespace=f"/bench{os.getpid()}", quiet=True, log_dir=run_dir)
     protocol = load_protocol(args.protocol)
     sim_s = protocol.schedule(None)[-1].end_s
@@ -64,7 +67,7 @@ def run_once(args, run_dir: Path) -> dict:
         ident = rig.start("identifier_node", {
             "use_sim_time": True, "protocol": args.protocol, "output_dir": str(run_dir), "run_name": "run",
             "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
-            "membrane": "A2", "identify": False})
+            "membrane": "A2", "identify": False, "command_batch": batch})
         log = run_dir / "identifier_node.log"
         t_start = wait_for_line(log, "protocol started", 120.0, ident)
         if t_start is None:
@@ -87,7 +90,7 @@ def run_once(args, run_dir: Path) -> dict:
             "wall_ms_per_tick": 1e3 * wall / ticks,
             "cpu_ms_per_tick": {n: 1e3 * (cpu_end[n] - cpu_start[n]) / ticks for n in cpu_start},
             "idle_pct": {n: 100.0 * (idle1[n] - idle0[n]) / args.idle_s for n in idle1 if n in idle0},
-            "load": (load0, os.getloadavg())}
+            "load": (load0, os.getloadavg()), "batch": batch}
 
 
 def main() -> None:
@@ -98,20 +101,30 @@ def main() -> None:
     ap.add_argument("--laser-rate", type=float, default=500.0)
     ap.add_argument("--idle-s", type=float, default=10.0)
     ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--batch", default="1",
+                    help="identifier_node command_batch values, comma-separated: each repeat runs them in turn "
+                         "(side by side, e.g. 1,25)")
     ap.add_argument("--model-node", action="store_true", help="with model_node (the demo's --model-node)")
     args = ap.parse_args()
     os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
     print(f"machine: {machine()}")
     rows = []
-    for k in range(args.repeat):
+    batches = [int(b) for b in args.batch.split(",")]
+    for k, batch in ((k, b) for k in range(args.repeat) for b in batches):
         with tempfile.TemporaryDirectory(prefix="bench_lockstep_") as tmp:
-            r = run_once(args, Path(tmp))
+            r = run_once(args, Path(tmp), batch)
         rows.append(r)
         cpu = ", ".join(f"{n.replace('_node', '')} {v:.2f}" for n, v in r["cpu_ms_per_tick"].items())
         idle = ", ".join(f"{n.replace('_node', '')} {v:.1f} %" for n, v in r["idle_pct"].items())
-        print(f"run {k + 1}: {r['sim_s']:.1f} s simulated in {r['wall_s']:.1f} s wall = x{r['speed']:.2f}; "
+        print(f"run {k + 1}, K = {batch}: {r['sim_s']:.1f} s simulated in {r['wall_s']:.1f} s wall = "
+              f"x{r['speed']:.2f}; "
               f"{r['wall_ms_per_tick']:.2f} ms wall per tick; CPU ms per tick: {cpu}; idle CPU: {idle}; "
               f"load {r['load'][0][0]:.1f} -> {r['load'][1][0]:.1f}", flush=True)
+    for batch in batches:
+        speeds = sorted(r["speed"] for r in rows if r["batch"] == batch)
+        cpu = sorted(sum(r["cpu_ms_per_tick"].values()) for r in rows if r["batch"] == batch)
+        print(f"K = {batch}: median speed x{speeds[len(speeds) // 2]:.2f} over {len(speeds)} runs "
+              f"({', '.join(f'x{v:.2f}' for v in speeds)}); median CPU {cpu[len(cpu) // 2]:.2f} ms per tick (sum)")
 
 
 if __name__ == "__main__":

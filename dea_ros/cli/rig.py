@@ -106,6 +106,10 @@ class RigProcesses:
         return None
 
 
+#: ``dea-ros rig demo --command-batch``: commands per voltage_cmd_batch (bench/bench_lockstep.py,
+#: docs/benchmarks.md "Issue 22 (session 9)"); amplifier_node's max_command_batch (50) bounds it.
+DEFAULT_COMMAND_BATCH = 25
+
 #: When each node of ``dea-ros rig up`` starts, s after the first: the mock first (its emulator and
 #: amplifier receiver), the others once it is up.
 DEFAULT_START_DELAYS_S = {"mock_hardware_node": 0.0, "amplifier_node": 1.0, "model_node": 1.0,
@@ -208,7 +212,7 @@ def _run_protocol(args, rig: RigProcesses, out: Path, run_name: str, line) -> in
         "use_sim_time": True, "protocol": args.protocol, "output_dir": str(out), "run_name": run_name,
         "exit_when_done": True, "command_rate_hz": args.rate, "command_trigger": "applied_voltage",
         "membrane": args.membrane, "identify": False, "rosbag2_format": args.rosbag2_format,
-        "progress_period_s": 1.0,
+        "progress_period_s": 1.0, "command_batch": args.command_batch,
     })
     while ident.poll() is None:
         problem = rig.check_alive()
@@ -350,6 +354,10 @@ def register(subparsers) -> None:
                       help="command/amplifier/clock rate, Hz (simulated; sines are fitted against the applied "
                            "waveform, so its zero-order hold does not bias the fit)")
     demo.add_argument("--laser-rate", type=float, default=500.0, help="displacement sample rate, Hz (simulated)")
+    demo.add_argument("--command-batch", type=int, default=DEFAULT_COMMAND_BATCH, metavar="K",
+                      help="the protocol is open loop: send the commands of K amplifier updates per message (each "
+                           "still applied at its own update through every limit); the lockstep waits on the "
+                           "identifier once per K ticks (1: every tick)")
     demo.add_argument("--noise", type=float, default=1e-6, help="laser noise sigma, m")
     demo.add_argument("--out", default="runs", help="folder of the runs")
     demo.add_argument("--run-name", help="folder name of this run (default: demo_<date>)")

@@ -36,6 +36,18 @@ stamped with the simulated time of receipt; nothing else): with that topic in th
 ``lockstep_topics`` the simulated clock does not advance before a command has reached the
 amplifier, so a controller's sample -> applied voltage delay is a fixed number of updates.
 
+Batches (simulated time only, ``max_command_batch`` > 0): an open-loop sender (identifier_node's
+``command_batch``) may send the voltages of its next K updates as one ``voltage_cmd_batch``
+(trajectory_msgs/JointTrajectory: ``header.stamp`` = the simulated time of the next update, point i
+at ``time_from_start`` = i update periods, ``positions[0]`` in V). The batch is queued
+(:class:`~dea_ros.hardware.amplifier.command_batch.CommandQueue`: at most ``max_command_batch``
+samples spanning at most ``watchdog_timeout_s``, for the very next update, only while active) and
+each update hands exactly one sample to the same SafeVoltageController as a command (every sample
+checked: ceiling, NaN/inf/negative, slew, watchdog). A rejected sample, a single ``voltage_cmd``,
+deactivate, cleanup and a fault empty the queue. The batch is acknowledged once on
+``~/command_received``, stamped with the update before its last sample's: the mock rig then steps K
+ticks per acknowledgement (its lockstep accepts any stamp at or after the tick).
+
 Backends (parameter ``backend``): ``mock`` (UDP to mock_hardware_node), ``uldaq``
 (Measurement Computing DAQ analog output into the amplifier input, ``amplifier_gain_V_per_V``;
 optionally the amplifier's monitor on an analog input and an enable/interlock digital output),
@@ -45,6 +57,7 @@ optionally the amplifier's monitor on an analog input and an enable/interlock di
 from __future__ import annotations
 
 import functools
+import json
 import math
 import sys
 import time
@@ -54,10 +67,13 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from rclpy.time import Time
 from sensor_msgs.msg import BatteryState
 from std_msgs.msg import Float64, Header
+from trajectory_msgs.msg import JointTrajectory
 
 from ..errors import AmplifierBackendError
+from ..hardware.amplifier.command_batch import CommandQueue
 from ..hardware.amplifier.config import AMPLIFIER_PARAMETERS, amplifier_config_from_parameters
 from ..hardware.amplifier.gain_check import GainLoopCheck, unverified_gain_note
 from ..hardware.amplifier.inprocess import InProcessAmplifierBackend
@@ -73,6 +89,7 @@ from .common import (
     SENSOR_QOS,
     TOPIC_VOLTAGE,
     TOPIC_VOLTAGE_CMD,
+    TOPIC_VOLTAGE_CMD_BATCH,
     make_voltage_state,
     publish_diagnostic,
 )
@@ -126,6 +143,8 @@ class AmplifierNode(LifecycleNode):
         self.voltage_pub = None
         self.received_pub = None   # simulated time: ~/command_received, for the mock rig's lockstep
         self.cmd_sub = None
+        self.batch_sub = None      # simulated time: voltage_cmd_batch
+        self.batch_queue: CommandQueue | None = None
         self.fault_reason: str | None = None
         self.backend_fault: str | None = None
         self.last_rejection_log = 0.0
@@ -268,6 +287,11 @@ class AmplifierNode(LifecycleNode):
             self.received_pub = self.create_publisher(Header, "~/command_received", 10)
         self.cmd_sub = self.create_subscription(Float64, TOPIC_VOLTAGE_CMD, self._guarded(self.on_command),
                                                 COMMAND_QOS)
+        if self.sim_time and int(self.config["max_command_batch"]) > 0:
+            self.batch_queue = CommandQueue(int(self.config["max_command_batch"]), self.update_period_s,
+                                            self.limits.watchdog_timeout_s)
+            self.batch_sub = self.create_subscription(JointTrajectory, TOPIC_VOLTAGE_CMD_BATCH,
+                                                      self._guarded(self.on_command_batch), COMMAND_QOS)
         self.last_update_wall_s = time.monotonic()
         if self.sim_time:  # lockstep with the simulated rig; a wall-clock backstop for a stalled clock
             self.timer = self.create_timer(self.update_period_s, self._guarded(self.on_update))
@@ -332,6 +356,7 @@ class AmplifierNode(LifecycleNode):
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         self.gain_check = None
+        self._drop_queue()
         if self.controller is not None:
             self.controller.deactivate(self.control_clock.now_s)  # the update timer ramps to 0 V
         self.get_logger().info("inactive: ramping to 0 V")
@@ -343,9 +368,10 @@ class AmplifierNode(LifecycleNode):
             if timer is not None:
                 self.destroy_timer(timer)
         self.timer = self.backstop_timer = None
-        if self.cmd_sub is not None:
-            self.destroy_subscription(self.cmd_sub)
-            self.cmd_sub = None
+        for sub in (self.cmd_sub, self.batch_sub):
+            if sub is not None:
+                self.destroy_subscription(sub)
+        self.cmd_sub = self.batch_sub = self.batch_queue = None
         for pub in (self.voltage_pub, self.received_pub):
             if pub is not None:
                 self.destroy_publisher(pub)
@@ -389,6 +415,7 @@ class AmplifierNode(LifecycleNode):
 
         Called on cleanup, shutdown, errors, every caught signal and executor shutdown.
         """
+        self._drop_queue()
         if self._shutting_down or self.controller is None or self.backend is None or not self.backend.is_open:
             return
         self._shutting_down = True
@@ -404,6 +431,7 @@ class AmplifierNode(LifecycleNode):
     def enter_fault(self, reason: str) -> None:
         """Latched fault: the enable line drops at once, the output ramps to 0 V, the backend closes.
         Leaves only through cleanup + configure (which checks everything again)."""
+        self._drop_queue()
         if self.fault_reason is None:
             self.fault_reason = reason
             self.get_logger().error(f"FAULT: {reason}; ramping to 0 V and disabling the amplifier")
@@ -438,16 +466,55 @@ class AmplifierNode(LifecycleNode):
         if self.gain_check is not None:     # no command is followed before the gain is verified
             self.gain_check_rejections += 1
             return
+        self._drop_queue()   # a single command supersedes a queued sequence
         result = self.controller.command(msg.data, self.control_clock.now_s)
         if self.received_pub is not None:  # simulated time: the mock rig's lockstep waits for it
             self.received_pub.publish(Header(stamp=self.get_clock().now().to_msg(), frame_id=self.get_name()))
         if not result:
-            now = time.monotonic()
-            if now - self.last_rejection_log > 1.0:
-                self.last_rejection_log = now
-                self.get_logger().warning(
-                    f"rejected voltage_cmd {msg.data!r}: {result.reason}; counts {self.controller.rejected_counts}"
-                )
+            self._log_rejection(f"voltage_cmd {msg.data!r}", result.reason)
+
+    def _log_rejection(self, what: str, reason: str) -> None:
+        now = time.monotonic()
+        if now - self.last_rejection_log > 1.0:
+            self.last_rejection_log = now
+            self.get_logger().warning(f"rejected {what}: {reason}; counts {self.controller.rejected_counts}, "
+                                      f"batches {self.batch_queue.counts() if self.batch_queue else '-'}")
+
+    def _drop_queue(self) -> None:
+        if self.batch_queue is not None:
+            self.batch_queue.clear()
+
+    def on_command_batch(self, msg: JointTrajectory) -> None:
+        """Simulated time: queue the voltages of the next updates (one per update); acknowledge once."""
+        if self.controller is None or self.batch_queue is None:
+            return
+        values, offsets = [], []
+        for point in msg.points:
+            if len(point.positions) != 1:
+                values, offsets = [], [0.0] * (len(msg.points) + 1)  # malformed: refused whole
+                break
+            values.append(float(point.positions[0]))
+            offsets.append(point.time_from_start.sec + point.time_from_start.nanosec * 1e-9)
+        first_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        verdict = self.batch_queue.offer(first_s, offsets, values, self.last_sim_s,
+                                         self.controller.is_activated and self.gain_check is None)
+        if self.received_pub is not None:
+            self.received_pub.publish(Header(stamp=Time(nanoseconds=self._batch_ack_ns(first_s, len(msg.points)))
+                                             .to_msg(), frame_id=self.get_name()))
+        if not verdict:
+            self._log_rejection(f"voltage_cmd_batch of {len(msg.points)} samples for t = {first_s:.6f} s "
+                                f"(last update {self.last_sim_s:.6f} s)", verdict.reason)
+
+    def _batch_ack_ns(self, first_s: float, n_points: int) -> int:
+        """The acknowledgement of a batch, ns: the update before its last sample's, counted from the update
+        it was sent for (at most the next one), whether it was accepted or not. A refused batch counts as
+        that many refused single commands, each of which is acknowledged too: the lockstep goes on (nothing
+        of it is applied) and a sender one update late (a race at start-up) is back in step with its next
+        batch. The acknowledgement paces the simulation only; it never moves the output."""
+        n_updates = min(max(n_points, 1), self.batch_queue.max_length)
+        next_s = self.last_sim_s + self.update_period_s
+        base_s = min(first_s, next_s) if math.isfinite(first_s) else next_s
+        return max(0, int(round((base_s + (n_updates - 2) * self.update_period_s) * 1e9)))
 
     def on_update(self, source: str = "update") -> None:
         if self.controller is None or self.backend is None or not self.backend.is_open or self._shutting_down:
@@ -455,6 +522,13 @@ class AmplifierNode(LifecycleNode):
         t = self._control_time(source)
         if self.gain_check is not None:
             self.controller.command(self.gain_check.command_at(t), t)   # through the limits (ceiling, slew)
+        elif self.batch_queue is not None and len(self.batch_queue) and source == "update":
+            sample_V = self.batch_queue.take(self.last_sim_s)   # this update's sample, as a command
+            if sample_V is not None:
+                result = self.controller.command(sample_V, t)
+                if not result:
+                    self._drop_queue()
+                    self._log_rejection(f"batched sample {sample_V!r}", result.reason)
         u = self.controller.update(t)
         if not self.write(u):
             self.enter_fault(f"backend write failed: {self.backend_fault}")
@@ -501,6 +575,8 @@ class AmplifierNode(LifecycleNode):
                        ("output_enabled", str(self.output_enabled)),
                        ("clock_clamped_steps", str(self.control_clock.clamped_steps)),
                        ("sim_clock_stalls", str(self.sim_stalls))]
+            if self.batch_queue is not None:
+                values += [("command_batches", json.dumps(self.batch_queue.counts()))]
             rejected = sum(self.controller.rejected_counts.values())
             fault = self.fault_reason or self.backend_fault
             level = DiagnosticStatus.ERROR if fault else (

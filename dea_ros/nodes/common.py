@@ -7,6 +7,9 @@ moves a whole rig):
 topic                        type                            content (SI units)
 ===========================  ==============================  ====================================
 voltage_cmd                  std_msgs/msg/Float64            commanded voltage, V
+voltage_cmd_batch            trajectory_msgs/msg/             simulated time only: the voltages of the
+                             JointTrajectory                 next updates (open-loop protocols), one
+                                                             point per update, ``positions[0]`` in V
 voltage                      sensor_msgs/msg/BatteryState    applied voltage (``voltage``, V), stamped
                                                              when applied; ``present`` = output on
 displacement                 sensor_msgs/msg/Range           measured displacement (``range``, m),
@@ -36,13 +39,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from sensor_msgs.msg import BatteryState, Range
 
 __all__ = [
-    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT", "TOPIC_DISPLACEMENT_IMPLAUSIBLE",
-    "TOPIC_DISPLACEMENT_PREDICTED",
+    "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE_CMD_BATCH", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT",
+    "TOPIC_DISPLACEMENT_IMPLAUSIBLE", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
     "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
 ]
 
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
+TOPIC_VOLTAGE_CMD_BATCH = "voltage_cmd_batch"
 TOPIC_VOLTAGE = "voltage"
 TOPIC_DISPLACEMENT = "displacement"
 #: Samples laser_sensor_node's plausibility checks discarded (their decoded value; ``displacement``

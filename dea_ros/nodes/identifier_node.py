@@ -6,7 +6,7 @@
    flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.identify.protocols`) at
    ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
    and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
-3. Records every rig topic (``voltage_cmd``, ``voltage``, ``displacement``,
+3. Records every rig topic (``voltage_cmd``, ``voltage_cmd_batch``, ``voltage``, ``displacement``,
    ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
    offered by each of its publishers discovered when its first message arrives (one profile per
@@ -20,7 +20,11 @@ for it before advancing (lockstep), so the commands reach the amplifier on time.
 ``command_trigger: applied_voltage`` (the demo) a tick is the amplifier's applied-voltage message
 of its update t_k, and the command is for its next update t_k + 1/``command_rate_hz``: with
 amplifier_node's ``~/command_received`` in the mock rig's ``lockstep_topics`` every command is
-applied exactly one update after it was computed (a clean zero-order hold, no jitter). ``~/abort``
+applied exactly one update after it was computed (a clean zero-order hold, no jitter). With
+``command_batch`` K > 1 (applied_voltage only: the protocol is open loop) the commands of the next K
+updates go out as one ``voltage_cmd_batch`` (amplifier_node queues them and applies one per update,
+each through its limits, and acknowledges the batch once), so the lockstep waits on the
+identifier once per K ticks instead of every tick; the applied voltage is the same. ``~/abort``
 (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
 
@@ -45,9 +49,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.time import Time
 from rclpy.qos import HistoryPolicy, QoSProfile
+from builtin_interfaces.msg import Duration
 from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
                    resolve_rosbag2_format)
@@ -63,8 +69,10 @@ from .common import (
     TOPIC_DISPLACEMENT_PREDICTED,
     TOPIC_VOLTAGE,
     TOPIC_VOLTAGE_CMD,
+    TOPIC_VOLTAGE_CMD_BATCH,
     declare_bool,
     declare_float,
+    declare_int,
     declare_str,
 )
 from .runner import run_nodes
@@ -73,6 +81,7 @@ __all__ = ["IdentifierNode", "main", "qos_to_bag"]
 
 RECORDED = (
     (TOPIC_VOLTAGE_CMD, "std_msgs/msg/Float64", Float64, COMMAND_QOS),
+    (TOPIC_VOLTAGE_CMD_BATCH, "trajectory_msgs/msg/JointTrajectory", JointTrajectory, COMMAND_QOS),
     (TOPIC_VOLTAGE, "sensor_msgs/msg/BatteryState", BatteryState, SENSOR_QOS),
     (TOPIC_DISPLACEMENT, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
     (TOPIC_DISPLACEMENT_PREDICTED, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
@@ -109,6 +118,8 @@ class IdentifierNode(Node):
         self.run_dir = (self.output_dir / (run_name or datetime.now().strftime("%Y%m%d_%H%M%S"))).resolve()
         self.bag_dir = self.run_dir / "bag"
         self.cmd_pub = self.create_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
+        self.batch_pub = self.create_publisher(JointTrajectory, TOPIC_VOLTAGE_CMD_BATCH, COMMAND_QOS) \
+            if self.command_batch > 1 else None
         self.ack_pub = self.create_publisher(Header, "~/tick_done", 10)
         self.status_pub = self.create_publisher(String, "~/status", LATCHED_QOS)
         self.segment_pub = self.create_publisher(String, "~/segment", LATCHED_QOS)
@@ -140,6 +151,13 @@ class IdentifierNode(Node):
         if self.command_trigger not in ("timer", "applied_voltage"):
             raise SystemExit(f"identifier_node: parameter 'command_trigger': timer or applied_voltage, "
                              f"got {self.command_trigger!r}")
+        self.command_batch = declare_int(
+            self, "command_batch", 1, "command_trigger applied_voltage: send the commands of this many updates as "
+            "one voltage_cmd_batch (open loop; amplifier_node max_command_batch bounds it; 1: one voltage_cmd "
+            "per update)", 1, 1000)
+        if self.command_batch > 1 and self.command_trigger != "applied_voltage":
+            raise SystemExit("identifier_node: parameter 'command_batch': > 1 only with command_trigger "
+                             "applied_voltage (simulated lockstep)")
         self.wait_for_rig_s = declare_float(self, "wait_for_rig_s", 30.0,
                                             "wait this long for the amplifier and the sensor, s", 0.0, 600.0)
         self.min_free_mb = declare_float(self, "min_free_mb", 100.0, "free disk needed before starting, MB", 0.0, 1e6)
@@ -172,6 +190,7 @@ class IdentifierNode(Node):
         self.bag: BagWriter | None = None
         self.skipped_before_clock = 0
         self.trigger_topic = None  # command_trigger applied_voltage: the recorded topic whose messages trigger
+        self.batch_end_ns: int | None = None  # command_batch: update time of the last command sent, ns
 
     def _load_protocol(self) -> None:
         """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
@@ -410,9 +429,31 @@ class IdentifierNode(Node):
                 f"segment {k + 1}/{len(self.segments)}: {seg.kind} "
                 + ", ".join(f"{key} {val:g}" for key, val in seg.info.items() if isinstance(val, (int, float)))
             )
-        # one command period ahead: the amplifier applies it at its next update, on time
-        self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + 1.0 / self.command_rate_hz))))
+        self.send_commands(k, t, now_ns)
         self.publish_ack(now_ns)
+
+    def send_commands(self, k: int, t: float, now_ns: int) -> None:
+        """The command for the next update (segment ``k``, protocol time ``t``, s), or with ``command_batch``
+        K > 1, once the last batch is used up, the commands of the next K updates as one batch."""
+        period = 1.0 / self.command_rate_hz
+        if self.batch_pub is None:  # one command period ahead: the amplifier applies it at its next update
+            self.cmd_pub.publish(Float64(data=float(self.segments[k].voltage_at(t + period))))
+            return
+        period_ns = int(round(1e9 * period))
+        if self.batch_end_ns is not None and now_ns < self.batch_end_ns - period_ns // 2:
+            return  # the amplifier still holds commands up to batch_end_ns
+        batch = JointTrajectory(joint_names=["dea_voltage"])
+        batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
+        for i in range(self.command_batch):  # the command the tick at t + i periods would send
+            tick_t = t + i * period
+            while k < len(self.segments) and tick_t >= self.segments[k].end_s:
+                k += 1
+            voltage = self.segments[k].voltage_at(tick_t + period) if k < len(self.segments) else 0.0
+            sec, nanosec = divmod(i * period_ns, 1_000_000_000)
+            batch.points.append(JointTrajectoryPoint(positions=[float(voltage)],
+                                                     time_from_start=Duration(sec=sec, nanosec=nanosec)))
+        self.batch_pub.publish(batch)
+        self.batch_end_ns = now_ns + self.command_batch * period_ns
 
     def publish_ack(self, stamp_ns: int | None = None) -> None:
         """Simulated-time lockstep: tell the mock rig this tick's command is out (header stamp = the

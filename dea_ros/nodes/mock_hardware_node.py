@@ -289,7 +289,11 @@ class MockHardwareNode(Node):
         if not self.ack_times:
             return False
         now = time.monotonic()
-        idle = not any(now - wall_s < self.lockstep_timeout_s for _stamp, wall_s in self.ack_times.values())
+        # a participant is not idle while its last acknowledgement covers the current tick (a batch of
+        # commands acknowledged once for several ticks, issue 22), however long those ticks take
+        tick_start = self._tick_start_s()
+        idle = not any(now - wall_s < self.lockstep_timeout_s or stamp_s >= tick_start
+                       for stamp_s, wall_s in self.ack_times.values())
         if idle != self.paused:
             self.paused = idle
             if idle:

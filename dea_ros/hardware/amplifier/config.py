@@ -32,6 +32,9 @@ AMPLIFIER_PARAMETERS: dict[str, tuple[Any, str]] = {
                                         "the watchdog)"),
     "watchdog_timeout_s": (0.5, "ramp to 0 V after this long without a command, s"),
     "update_rate_hz": (1000.0, "output update and publication rate, Hz (1 .. 20000)"),
+    "max_command_batch": (50, "simulated time only: most samples of one voltage_cmd_batch (one applied per "
+                              "update, each through every limit; the batch may not span more than "
+                              "watchdog_timeout_s; 0: batches refused)"),
     "mock_port": (47650, "UDP port of mock_hardware_node (backend mock)"),
     "uldaq_unique_id": ("", "DAQ unique id (empty: the first USB device)"),
     "uldaq_channel": (0, "analog output channel wired to the amplifier input"),
@@ -127,6 +130,7 @@ def _check_ranges(c: Mapping[str, Any]) -> float:
     _number_in(c, "update_rate_hz", 1.0, 20000.0, "Hz")
     _number_in(c, "slew_rate_V_per_s", 1.0, 1e7, "V/s (2.2 kV in 22 ms = 1e5 V/s; a value in V/ms?)")
     _number_in(c, "mock_port", 1, 65535)
+    _number_in(c, "max_command_batch", 0, 1000, "samples per batch")
     _number_in(c, "uldaq_channel", 0, 255)
     _number_in(c, "enable_bit", 0, 63)
     _number_in(c, "monitor_channel", -1, 255, "-1 for no monitor")
