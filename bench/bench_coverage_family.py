@@ -193,13 +193,17 @@ def main() -> None:
     ap.add_argument("--sets", default="paper,17")
     ap.add_argument("--jsonl", default=str(Path(__file__).with_name("results") / "family.jsonl"))
     ap.add_argument("--table-only", action="store_true")
+    ap.add_argument("--members", default="", help="comma-separated membrane names (default: all)")
     args = ap.parse_args()
     path = Path(args.jsonl)
     path.parent.mkdir(exist_ok=True)
     done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     if not args.table_only:
         have = {(r["membrane"], r["kind"], r["seed"]) for r in done}
-        members = [(p, f_r, _peak(p, 0.9 * f_r, 1.1 * f_r)) for p, f_r in family(args.membranes)]
+        only = [m for m in args.members.split(",") if m]      # in the order given
+        drawn = {p.name: (p, f_r) for p, f_r in family(args.membranes)}
+        members = [(p, f_r, _peak(p, 0.9 * f_r, 1.1 * f_r)) for p, f_r in (
+            [drawn[m] for m in only] if only else list(drawn.values()))]
         for seed in range(1, args.seeds + 1):       # seed-major: an interrupted run has every membrane
             for p, f_r, true_peak in members:
                 for kind in args.sets.split(","):

@@ -333,8 +333,9 @@ def fit_joint(
 def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
     """scipy's trust-region least squares on ``obj`` from its start, reporting every evaluation.
 
-    A trial point at which a record's orbit cannot be solved (harmonic balance fails: a fold of the
-    branch between the current point and the trial) gets non-finite residuals, so that the trust
+    A trial point at which the model cannot reproduce a record at all (a record's orbit does not
+    solve: a fold of the branch between the current point and the trial; or a loaded static point
+    has no equilibrium) gets non-finite residuals, so that the trust
     region shrinks towards the converged point (a continuation in the parameters) instead of ending
     the refinement; the start itself must solve."""
     n_res = obj.residuals(np.clip(obj.theta0(), lo + 1e-9, hi - 1e-9)).size
@@ -343,7 +344,7 @@ def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
         seeds = dict(obj._guesses)
         try:
             r = obj.residuals(x)
-        except HarmonicBalanceError as exc:
+        except (HarmonicBalanceError, NoEquilibriumError, TransientError) as exc:
             LOG.info("joint refinement: trial step rejected (%s)", exc)
             obj._guesses = seeds                 # keep the branch of the last converged point
             obj.rejected_steps += 1
@@ -392,8 +393,9 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
                                  log_parameters=[False] * (q + 1) + [True] * 3, context="joint fit")
     warnings += stats.warnings
     if objective.rejected_steps:
-        warnings.append(f"joint refinement: {objective.rejected_steps} trial step(s) rejected where a record's orbit "
-                        "did not solve (a fold between the trial and the converged point); the trust region shrank")
+        warnings.append(f"joint refinement: {objective.rejected_steps} trial step(s) rejected where the model could "
+                        "not solve a record (an orbit past a fold, a static point without equilibrium); the trust "
+                        "region shrank")
     identified = False
     if "sigma_h''(1)_Pa" in objective.names:
         k = objective.names.index("sigma_h''(1)_Pa")
