@@ -186,6 +186,34 @@ def table(records: list) -> list[str]:
     return out
 
 
+def _stats(vals: list) -> str:
+    e = np.abs([v["rel_err"] for v in vals]) * 100
+    z = np.array([v["z"] for v in vals])
+    cov = sum(v["covers"] for v in vals)
+    return f"{np.median(e):.3g} % / {e.max():.3g} % / {cov}/{len(vals)} ({100 * cov / len(vals):.0f} %) / {z.mean():+.2f}"
+
+
+def compare(before: list, after: list) -> list[str]:
+    """Side by side on the runs (membrane, set, seed) present in both files: per parameter median / worst
+    abs. relative error / 95 % CI covers the truth / mean z."""
+    key = {(r["membrane"], r["kind"], r["seed"]): r for r in before}
+    pairs = [(key[(r["membrane"], r["kind"], r["seed"])], r) for r in after
+             if (r["membrane"], r["kind"], r["seed"]) in key]
+    out = ["| data | parameter | runs | before: median / worst / covers / mean z | after: median / worst / covers / "
+           "mean z |", "|---|---|---|---|---|"]
+    for kind in ("paper", "17"):
+        ps = [(b, a) for b, a in pairs if a["kind"] == kind]
+        for n in NAMES[:4]:
+            both = [(b["params"][n], a["params"][n]) for b, a in ps if n in b["params"] and n in a["params"]]
+            if both:
+                out.append(f"| {'paper' if kind == 'paper' else '17'} | {n} | {len(both)} | "
+                           f"{_stats([b for b, _ in both])} | {_stats([a for _, a in both])} |")
+        if ps:
+            out.append(f"| {kind} | joint refinement failed | {len(ps)} | {sum(bool(b.get('joint_failed')) for b, _ in ps)} "
+                       f"| {sum(bool(a.get('joint_failed')) for _, a in ps)} |")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--membranes", type=int, default=20)
@@ -193,13 +221,18 @@ def main() -> None:
     ap.add_argument("--sets", default="paper,17")
     ap.add_argument("--jsonl", default=str(Path(__file__).with_name("results") / "family.jsonl"))
     ap.add_argument("--table-only", action="store_true")
+    ap.add_argument("--compare", default="", help="an earlier results file: side by side on the common runs")
+    ap.add_argument("--members", default="", help="comma-separated membrane names (default: all)")
     args = ap.parse_args()
     path = Path(args.jsonl)
     path.parent.mkdir(exist_ok=True)
     done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
     if not args.table_only:
         have = {(r["membrane"], r["kind"], r["seed"]) for r in done}
-        members = [(p, f_r, _peak(p, 0.9 * f_r, 1.1 * f_r)) for p, f_r in family(args.membranes)]
+        only = [m for m in args.members.split(",") if m]      # in the order given
+        drawn = {p.name: (p, f_r) for p, f_r in family(args.membranes)}
+        members = [(p, f_r, _peak(p, 0.9 * f_r, 1.1 * f_r)) for p, f_r in (
+            [drawn[m] for m in only] if only else list(drawn.values()))]
         for seed in range(1, args.seeds + 1):       # seed-major: an interrupted run has every membrane
             for p, f_r, true_peak in members:
                 for kind in args.sets.split(","):
@@ -218,6 +251,9 @@ def main() -> None:
     text = "\n".join([f"Machine: {machine()}; 1 worker, OPENBLAS_NUM_THREADS=1", "",
                       f"{len(membranes)} membranes ({', '.join(membranes)}), seeds {seeds}, {len(done)} runs.", ""]
                      + table(done)) + "\n"
+    if args.compare:
+        text += "\n" + "\n".join(compare([json.loads(line) for line in Path(args.compare).read_text().splitlines()],
+                                          done)) + "\n"
     print(text)
 
 

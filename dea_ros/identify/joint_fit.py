@@ -37,6 +37,7 @@ base parameters' (or, without them, to the start's), as in the static fit's repr
 """
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass, field
@@ -55,6 +56,8 @@ from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solut
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
 from ..errors import JointFitError
+
+LOG = logging.getLogger("dea_ros.identify")
 
 __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError", "CURVATURE_REL_CI_LIMIT",
            "JOINT_NAMES", "CURVATURE_BOUND_PA"]
@@ -147,6 +150,7 @@ class JointObjective:
         self._guesses: dict = {}
         self._cache: dict = {}
         self.n_evaluations = 0
+        self.rejected_steps = 0                  # trial points whose orbits did not solve
 
     # ------------------------------------------------------------------ parameters
     def theta0(self) -> np.ndarray:
@@ -335,9 +339,24 @@ def fit_joint(
 
 
 def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
-    """scipy's trust-region least squares on ``obj`` from its start, reporting every evaluation."""
+    """scipy's trust-region least squares on ``obj`` from its start, reporting every evaluation.
+
+    A trial point at which the model cannot reproduce a record at all (a record's orbit does not
+    solve: a fold of the branch between the current point and the trial; or a loaded static point
+    has no equilibrium) gets non-finite residuals, so that the trust
+    region shrinks towards the converged point (a continuation in the parameters) instead of ending
+    the refinement; the start itself must solve."""
+    n_res = obj.residuals(np.clip(obj.theta0(), lo + 1e-9, hi - 1e-9)).size
+
     def fun(x):
-        r = obj.residuals(x)
+        seeds = dict(obj._guesses)
+        try:
+            r = obj.residuals(x)
+        except (HarmonicBalanceError, NoEquilibriumError, TransientError) as exc:
+            LOG.info("joint refinement: trial step rejected (%s)", exc)
+            obj._guesses = seeds                 # keep the branch of the last converged point
+            obj.rejected_steps += 1
+            return np.full(n_res, np.nan)
         if progress:
             progress({"stage": "joint", "evaluation": obj.n_evaluations, "cost": float(r @ r)})
         return r
@@ -379,6 +398,10 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
     stats = parameter_statistics(jac_phys, res, objective.names, values,
                                  log_parameters=[False] * (q + 1) + [True] * 3, context="joint fit")
     warnings += stats.warnings
+    if objective.rejected_steps:
+        warnings.append(f"joint refinement: {objective.rejected_steps} trial step(s) rejected where the model could "
+                        "not solve a record (an orbit past a fold, a static point without equilibrium); the trust "
+                        "region shrank")
     identified = False
     if "sigma_h''(1)_Pa" in objective.names:
         k = objective.names.index("sigma_h''(1)_Pa")
