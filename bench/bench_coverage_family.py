@@ -190,7 +190,8 @@ def _stats(vals: list) -> str:
     e = np.abs([v["rel_err"] for v in vals]) * 100
     z = np.array([v["z"] for v in vals])
     cov = sum(v["covers"] for v in vals)
-    return f"{np.median(e):.3g} % / {e.max():.3g} % / {cov}/{len(vals)} ({100 * cov / len(vals):.0f} %) / {z.mean():+.2f}"
+    share = f"{cov}/{len(vals)} ({100 * cov / len(vals):.0f} %)"
+    return f"{np.median(e):.3g} % / {e.max():.3g} % / {share} / {z.mean():+.2f}"
 
 
 def compare(before: list, after: list) -> list[str]:
@@ -209,8 +210,9 @@ def compare(before: list, after: list) -> list[str]:
                 out.append(f"| {'paper' if kind == 'paper' else '17'} | {n} | {len(both)} | "
                            f"{_stats([b for b, _ in both])} | {_stats([a for _, a in both])} |")
         if ps:
-            out.append(f"| {kind} | joint refinement failed | {len(ps)} | {sum(bool(b.get('joint_failed')) for b, _ in ps)} "
-                       f"| {sum(bool(a.get('joint_failed')) for _, a in ps)} |")
+            failed_before = sum(bool(b.get('joint_failed')) for b, _ in ps)
+            failed_after = sum(bool(a.get('joint_failed')) for _, a in ps)
+            out.append(f"| {kind} | joint refinement failed | {len(ps)} | {failed_before} | {failed_after} |")
     return out
 
 
@@ -252,8 +254,8 @@ def main() -> None:
                       f"{len(membranes)} membranes ({', '.join(membranes)}), seeds {seeds}, {len(done)} runs.", ""]
                      + table(done)) + "\n"
     if args.compare:
-        text += "\n" + "\n".join(compare([json.loads(line) for line in Path(args.compare).read_text().splitlines()],
-                                          done)) + "\n"
+        before = [json.loads(line) for line in Path(args.compare).read_text().splitlines()]
+        text += "\n" + "\n".join(compare(before, done)) + "\n"
     print(text)
 
 
