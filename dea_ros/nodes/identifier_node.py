@@ -79,6 +79,10 @@ from .runner import run_nodes
 
 __all__ = ["IdentifierNode", "main", "qos_to_bag"]
 
+#: ``command_trigger: applied_voltage``: wall-clock s without a triggering amplifier output, while running,
+#: after which the node commands from its clock again (below amplifier_node's 2 s clock-stall backstop).
+TRIGGER_SILENCE_S = 1.0
+
 RECORDED = (
     (TOPIC_VOLTAGE_CMD, "std_msgs/msg/Float64", Float64, COMMAND_QOS),
     (TOPIC_VOLTAGE_CMD_BATCH, "trajectory_msgs/msg/JointTrajectory", JointTrajectory, COMMAND_QOS),
@@ -144,6 +148,7 @@ class IdentifierNode(Node):
         self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends")
         self.exit_when_done = declare_bool(self, "exit_when_done", False, "stop the node when done (demo)")
         self.command_rate_hz = declare_float(self, "command_rate_hz", 500.0, "voltage_cmd rate, Hz", 10.0, 5000.0)
+        self.period_ns = int(round(1e9 / self.command_rate_hz))  # one command period (update), ns
         self.command_trigger = declare_str(
             self, "command_trigger", "timer",
             "timer (a command every 1/command_rate_hz) or applied_voltage (simulated lockstep: one command per "
@@ -191,6 +196,9 @@ class IdentifierNode(Node):
         self.skipped_before_clock = 0
         self.trigger_topic = None  # command_trigger applied_voltage: the recorded topic whose messages trigger
         self.batch_end_ns: int | None = None  # command_batch: update time of the last command sent, ns
+        self.backlog_triggers = 0  # applied-voltage outputs older than the clock (recorded, no command)
+        self.last_trigger_wall_s = time.monotonic()  # time.monotonic() of the last output that triggered a tick
+        self.restarts = 0  # ticks from the clock after TRIGGER_SILENCE_S without a triggering output
 
     def _load_protocol(self) -> None:
         """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
@@ -364,14 +372,41 @@ class IdentifierNode(Node):
         return self.get_clock().now().nanoseconds
 
     def on_applied_voltage(self, stamp_ns: int) -> None:
-        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp, ns)."""
-        if stamp_ns > self.last_trigger_ns and self.now_ns() > 0:  # (not before the first /clock)
-            self.last_trigger_ns = stamp_ns
-            self.on_tick(stamp_ns)
+        """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp, ns).
+
+        An output older than the clock by half an update or more is a backlog (the clock ran while this
+        node was busy, e.g. starting before the rig's lockstep engaged): a command computed from it would
+        be for an update already done, and amplifier_node's acknowledgement of it (stamped with its own,
+        current clock) would let the mock rig advance with this node still behind, so that the protocol
+        runs late by the backlog or its first batch is refused as stale. Such outputs are recorded but
+        trigger nothing; the current one does (the /clock subscription keeps only the newest message, so
+        the node's clock is never part of the backlog)."""
+        now_ns = self.now_ns()
+        if stamp_ns <= self.last_trigger_ns or now_ns <= 0:  # (not before the first /clock)
+            return
+        self.last_trigger_ns = stamp_ns
+        if stamp_ns < now_ns - self.period_ns // 2:
+            self.backlog_triggers += 1
+            return
+        self.last_trigger_wall_s = time.monotonic()
+        self.on_tick(stamp_ns)
 
     def on_wait_tick(self) -> None:
-        """``command_trigger: applied_voltage``: the wait for the rig times out without amplifier output."""
-        if self.state in ("starting", "waiting") and self.now_ns() > 0:
+        """``command_trigger: applied_voltage``, every 0.1 s of wall time: the wait for the rig times out
+        without amplifier output; and while running, a tick from the clock when no amplifier output
+        triggered one for ``TRIGGER_SILENCE_S``: a command (batch) that did not reach the amplifier (or
+        was refused) leaves the mock rig's lockstep without an acknowledgement, and a rig that pauses
+        when idle would wait for it for good. The command for the update after the current one restarts it."""
+        if self.now_ns() <= 0:
+            return
+        if self.state in ("starting", "waiting"):
+            self.on_tick()
+        elif self.state == "running" and time.monotonic() - self.last_trigger_wall_s > TRIGGER_SILENCE_S:
+            self.restarts += 1
+            self.get_logger().warning(f"no amplifier output for {TRIGGER_SILENCE_S:g} s (wall) while running: "
+                                      f"commanding from the current clock again (restart {self.restarts})")
+            self.batch_end_ns = None
+            self.last_trigger_wall_s = time.monotonic()
             self.on_tick()
 
     def on_tick(self, now_ns: int | None = None) -> None:
@@ -550,7 +585,8 @@ class IdentifierNode(Node):
 
     def write_summary(self) -> None:
         self.summary.update({"state": self.state, "error": self.error, "run_dir": str(self.run_dir),
-                             "protocol": self.protocol.name})
+                             "protocol": self.protocol.name,
+                             "backlog_triggers": self.backlog_triggers, "restarts": self.restarts})
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / "summary.json").write_text(json.dumps(self.summary, indent=2, default=str))
@@ -582,7 +618,8 @@ class IdentifierNode(Node):
         return {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
                 "elapsed_s": elapsed, "duration_s": total,
                 "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
-                "bag": str(self.bag_dir), "error": self.error}
+                "bag": str(self.bag_dir), "error": self.error,
+                "backlog_triggers": self.backlog_triggers, "restarts": self.restarts}
 
     def publish_status(self) -> None:
         self.status_pub.publish(String(data=json.dumps(self.status())))

@@ -321,7 +321,7 @@ class MockHardwareNode(Node):
         if waited < self.lockstep_timeout_s:
             return False
         self.lockstep_timeouts += 1
-        if self.lockstep_timeouts in (1, 10, 100) or self.lockstep_timeouts % 1000 == 0:
+        if self.lockstep_timeouts <= 10 or self.lockstep_timeouts in (100, 1000) or self.lockstep_timeouts % 10000 == 0:
             self.get_logger().warning(
                 f"{what} silent for {waited:.2f} s (wall) at simulated t = {self.clock_time_s:.3f} s: "
                 f"continuing ({self.lockstep_timeouts} timeouts)")
