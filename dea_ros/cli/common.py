@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CliError
+from ..errors import CliError, DeaRosError
 from ..model import load_parameters
 
 __all__ = ["read_input_file", "check_output_file", "add_membrane_args", "load_membrane", "finite",
@@ -23,6 +23,10 @@ def read_input_file(option: str, path, loader):
     """``loader(path)`` with the errors of a bad input file turned into a CliError naming it."""
     try:
         return loader(path)
+    except DeaRosError as exc:
+        if isinstance(exc.__cause__, (UnicodeDecodeError, OSError)):  # a file it could not read: name the option
+            raise CliError(f"{option} {exc}") from None
+        raise
     except RecursionError:
         raise CliError(f"{option} {path}: nested too deeply to be a dea_ros input (a YAML of "
                        "thousands of nested brackets?)") from None

@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..errors import DeaRosError, PlanningError
 from ..model.parameters import MembraneParameters
+from ..model.yaml_files import read_yaml_mapping
 from ..solvers.inputs import SinePeriodic
 from ..solvers.sweep import frequency_sweep
 from .determination import inverse_diagonal
@@ -96,13 +96,9 @@ def first_fit_from_result(result) -> FirstFit:
 def first_fit_from_file(path) -> FirstFit:
     """The :class:`FirstFit` of a params.yaml written by ``dea-ros identify``."""
     path = Path(path)
-    if not path.is_file():
-        raise PlanningError(f"{path}: no such file (give the params.yaml written by dea-ros identify)")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise PlanningError(f"{path}: not valid YAML ({exc})") from None
-    ident = data.get("identification") if isinstance(data, dict) else None
+    data = read_yaml_mapping(path, PlanningError, "file", fix="give the params.yaml written by dea-ros identify",
+                             mapping="a mapping (membrane, identification, ...)")
+    ident = data.get("identification")
     info = ident.get("fisher_information") if isinstance(ident, dict) else None
     if not isinstance(info, dict):
         raise PlanningError(f"{path}: no 'identification: fisher_information' section; plan from the params.yaml "

@@ -46,6 +46,7 @@ import yaml
 
 from ..errors import ProtocolError
 from ..model.parameters import config_dir
+from ..model.yaml_files import read_yaml_mapping
 
 __all__ = ["Protocol", "Segment", "ProtocolError", "load_protocol", "protocol_path"]
 
@@ -264,8 +265,6 @@ def load_protocol(name_or_path: str | Path) -> Protocol:
         if not candidate.is_file():
             raise ProtocolError(f"no protocol file {name_or_path!r} (nor {candidate})")
         p = candidate
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ProtocolError(f"{p}: not valid YAML ({exc})") from None
+    data = read_yaml_mapping(p, ProtocolError, "protocol file", fix="give a protocol name or a YAML path",
+                             mapping="a mapping 'protocol: {segments: [...]}'")
     return Protocol.from_dict(data, source=str(p))

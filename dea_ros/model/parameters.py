@@ -46,6 +46,7 @@ from typing import Any, Mapping
 import yaml
 
 from ..errors import ParameterError
+from .yaml_files import read_yaml_mapping
 
 try:  # optional: the ament index of a sourced ROS 2 workspace (absent outside ROS)
     from ament_index_python.packages import get_package_share_directory
@@ -375,15 +376,10 @@ class MembraneParameters:
         key (so a params file can carry other sections too).
         """
         path = Path(path)
-        if not path.is_file():
-            raise ParameterError(
-                f"{path}: no such parameters file; give a YAML path or a preset name {PRESET_NAMES}"
-            )
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise ParameterError(f"{path}: not valid YAML ({exc})") from None
-        if isinstance(data, Mapping) and "membrane" in data and isinstance(data["membrane"], Mapping):
+        data = read_yaml_mapping(path, ParameterError, "parameters file",
+                                 fix=f"give a YAML path or a preset name {PRESET_NAMES}",
+                                 mapping="a mapping of field: value (or a 'membrane:' section of them)")
+        if "membrane" in data and isinstance(data["membrane"], Mapping):
             data = data["membrane"]
         return cls.from_dict(data, source=str(path), require=require)
 

@@ -16,10 +16,10 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-import yaml
 from scipy.stats import qmc
 
 from ..errors import SpecError
+from ..model.yaml_files import read_yaml_mapping
 from ..solvers.inputs import check_harmonics
 
 __all__ = ["SpecError", "StudySpec", "Variable", "load_spec", "parse_spec", "spec_from_dict", "MEMBRANE_FIELDS",
@@ -333,15 +333,9 @@ def parse_spec(data, source: str = "spec") -> StudySpec:
 
 def load_spec(path) -> StudySpec:
     """Read and validate a spec YAML file."""
-    p = Path(path)
-    if not p.is_file():
-        raise SpecError(f"{path}: no such spec file")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise SpecError(f"{path}: not valid YAML ({exc})") from None
-    except UnicodeDecodeError:
-        raise SpecError(f"{path}: not a text file") from None
+    data = read_yaml_mapping(path, SpecError, "spec file",
+                             fix="give a study spec YAML such as config/studies/a2_family.yaml (docs/study.md)",
+                             mapping="a mapping (name, base, parameters, sampling, ...)")
     return parse_spec(data, source=str(path))
 
 

@@ -62,6 +62,7 @@ import yaml
 
 from ...errors import ExperimentError
 from ...model.parameters import PRESET_NAMES, MembraneParameters, ParameterError, load_parameters
+from ...model.yaml_files import read_yaml_mapping
 from .checks import check_displacement, check_mass, check_time, check_voltage
 from .csv_io import read_csv_columns, write_csv_columns
 from .data import GEOMETRY_FIELDS, WAVEFORMS, ExperimentSet, SineData, SineSeries, StaticData, StepData
@@ -105,12 +106,8 @@ def _resolve_parameters(folder: Path, ref: str, manifest: Path) -> MembraneParam
 
 def _read_manifest(manifest: Path) -> Mapping:
     """The manifest's mapping, its fields, format and units checked."""
-    try:
-        data = yaml.safe_load(manifest.read_text())
-    except yaml.YAMLError as exc:
-        raise _manifest_error(manifest, f"not valid YAML ({exc})") from None
-    if not isinstance(data, Mapping):
-        raise _manifest_error(manifest, "expected a mapping (format, membrane, mass_kg, experiments, ...)")
+    data = read_yaml_mapping(manifest, ExperimentError, "manifest",
+                             mapping="a mapping (format, membrane, mass_kg, experiments, ...)")
     unknown = sorted(set(data) - _FIELDS)
     if unknown:
         raise _manifest_error(manifest, f"unknown field(s) {unknown}; allowed: {sorted(_FIELDS)}")
