@@ -18,8 +18,10 @@ import pytest
 
 pytest.importorskip("rclpy")  # the rig runs ROS 2 nodes
 
+from dea_ros.cli.rig import DEFAULT_COMMAND_BATCH  # noqa: E402 (after the skip without rclpy)
+
 ROOT = Path(__file__).resolve().parents[1]
-COMMAND_BATCH = 1    # one voltage_cmd per amplifier update (the demo's default; batches: test_command_batch_rig.py)
+COMMAND_BATCH = DEFAULT_COMMAND_BATCH   # the demo's (batches of 25; the same voltages: test_command_batch_rig.py)
 
 
 @pytest.fixture(scope="module")

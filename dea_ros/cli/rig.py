@@ -108,10 +108,11 @@ class RigProcesses:
 
 #: ``dea-ros rig demo --command-batch``: commands per voltage_cmd_batch (bench/bench_lockstep.py,
 #: docs/benchmarks.md "Issue 22 (session 9)"); amplifier_node's max_command_batch (50) bounds it.
-#: 1 (one voltage_cmd per update) by default: with K > 1 the identifier can start on a backlog of old
-#: amplifier outputs, its first batch is refused as stale and the lockstep can stall for good (seen
-#: once on the end-to-end test at load ~1, issue 22); opt in with K = 25 for x1.9 until that is fixed.
-DEFAULT_COMMAND_BATCH = 1
+#: 25 by default (x1.9 against one voltage_cmd per update, ``--command-batch 1``). What made it opt-in
+#: in session 9 (the identifier started on a backlog of old amplifier outputs, its first batch was refused
+#: as stale and the lockstep stalled for good) is fixed in identifier_node: only a current output triggers
+#: a command, and a run that hears no output for 1 s commands from its clock again.
+DEFAULT_COMMAND_BATCH = 25
 
 #: When each node of ``dea-ros rig up`` starts, s after the first: the mock first (its emulator and
 #: amplifier receiver), the others once it is up.

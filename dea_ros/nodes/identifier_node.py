@@ -196,7 +196,7 @@ class IdentifierNode(Node):
         self.skipped_before_clock = 0
         self.trigger_topic = None  # command_trigger applied_voltage: the recorded topic whose messages trigger
         self.batch_end_ns: int | None = None  # command_batch: update time of the last command sent, ns
-        self.backlog_triggers = 0  # applied-voltage outputs older than the clock (recorded, no command)
+        self.outputs_behind_clock = 0  # applied-voltage outputs older than the clock (recorded, no command)
         self.last_trigger_wall_s = time.monotonic()  # time.monotonic() of the last output that triggered a tick
         self.restarts = 0  # ticks from the clock after TRIGGER_SILENCE_S without a triggering output
 
@@ -386,7 +386,7 @@ class IdentifierNode(Node):
             return
         self.last_trigger_ns = stamp_ns
         if stamp_ns < now_ns - self.period_ns // 2:
-            self.backlog_triggers += 1
+            self.outputs_behind_clock += 1
             return
         self.last_trigger_wall_s = time.monotonic()
         self.on_tick(stamp_ns)
@@ -586,7 +586,7 @@ class IdentifierNode(Node):
     def write_summary(self) -> None:
         self.summary.update({"state": self.state, "error": self.error, "run_dir": str(self.run_dir),
                              "protocol": self.protocol.name,
-                             "backlog_triggers": self.backlog_triggers, "restarts": self.restarts})
+                             "outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts})
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / "summary.json").write_text(json.dumps(self.summary, indent=2, default=str))
@@ -619,7 +619,7 @@ class IdentifierNode(Node):
                 "elapsed_s": elapsed, "duration_s": total,
                 "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
                 "bag": str(self.bag_dir), "error": self.error,
-                "backlog_triggers": self.backlog_triggers, "restarts": self.restarts}
+                "outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts}
 
     def publish_status(self) -> None:
         self.status_pub.publish(String(data=json.dumps(self.status())))

@@ -26,11 +26,15 @@ import time
 from pathlib import Path
 
 import numpy as np
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from std_msgs.msg import Float64, String
 
 from dea_ros.cli.rig import RigProcesses, start_rig
 from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, read_signals
 from dea_ros.identify.protocols import load_protocol
 from dea_ros.model import config_dir
+from dea_ros.nodes.common import COMMAND_QOS, LATCHED_QOS
 
 PROTOCOL = """
 protocol:
@@ -56,7 +60,7 @@ protocol:
 RATE = 250.0
 
 
-def _run(tmp_path: Path, batch: int, protocol: Path) -> Path:
+def _run(tmp_path: Path, batch: int, protocol: Path, meanwhile=None) -> Path:
     run_dir = tmp_path / f"k{batch}"
     run_dir.mkdir()
     rig = RigProcesses(namespace=f"/batch{os.getpid()}_{batch}", quiet=True, log_dir=run_dir)
@@ -70,7 +74,10 @@ def _run(tmp_path: Path, batch: int, protocol: Path) -> Path:
         t_end = time.monotonic() + 240.0
         while ident.poll() is None and time.monotonic() < t_end:
             assert rig.check_alive() is None, rig.check_alive()
-            time.sleep(0.2)
+            if meanwhile is not None:
+                meanwhile(rig.namespace)
+            else:
+                time.sleep(0.2)
         assert ident.returncode == 0, (run_dir / "identifier_node.log").read_text()
     finally:
         rig.stop()
@@ -114,3 +121,69 @@ def test_batches_apply_the_same_voltages_as_one_command_per_update(tmp_path):
     np.testing.assert_allclose(batched[start:n], single[start:n], rtol=0.0, atol=0.5, err_msg=str(timeouts))
     counts = json.loads((batched_bag.parent / "summary.json").read_text())["messages"]
     assert any(topic.endswith("/voltage_cmd_batch") and n > 0 for topic, n in counts.items()), counts
+
+
+SINE_PROTOCOL = """
+protocol:
+  name: batch_restart
+  membrane: A2
+  mass_kg: 0.003
+  segments:
+    - kind: static
+      voltages_V: [0]
+      hold_s: 0.2
+      measure_s: 0.05
+    - kind: sine
+      amplitude_V: 2000
+      frequencies_Hz: [9.0]
+      settle_s: 0.5
+      measure_s: 1.5
+"""
+
+
+class ForeignCommand:
+    """Another node on the graph: once the identifier's protocol has run ``after_s`` (simulated), one 0 V
+    ``voltage_cmd``. amplifier_node takes it (a single command supersedes a queued batch) and empties
+    its queue: the identifier's batch is gone, nobody acknowledges the next tick, the rig pauses."""
+
+    def __init__(self, ctx, after_s: float = 0.5):
+        self.ctx, self.after_s = ctx, after_s
+        self.node = self.executor = self.pub = None
+        self.status: dict = {}
+        self.sent_at_s: float | None = None
+
+    def __call__(self, ns: str) -> None:
+        if self.node is None:
+            self.node = Node("foreign_commander", context=self.ctx)
+            self.executor = SingleThreadedExecutor(context=self.ctx)
+            self.executor.add_node(self.node)
+            self.pub = self.node.create_publisher(Float64, f"{ns}/voltage_cmd", COMMAND_QOS)
+            self.node.create_subscription(String, f"{ns}/identifier_node/status",
+                                          lambda m: self.status.update(json.loads(m.data)), LATCHED_QOS)
+        self.executor.spin_once(timeout_sec=0.02)
+        elapsed = self.status.get("elapsed_s")
+        if self.sent_at_s is None and self.status.get("state") == "running" and elapsed and elapsed > self.after_s:
+            self.pub.publish(Float64(data=0.0))
+            self.sent_at_s = elapsed
+
+
+def test_a_batched_run_whose_batch_is_lost_restarts_from_the_clock(tmp_path, ros_context):
+    """A lost batch (here: emptied by another node's single command) left the mock rig paused for good
+    (the identifier waited for outputs that a paused clock does not make). identifier_node commands from
+    its clock after 1 s without an output: the protocol completes, and after the restart the applied
+    voltage is the protocol's again, update for update."""
+    protocol = tmp_path / "batch_restart.yaml"
+    protocol.write_text(SINE_PROTOCOL)
+    foreign = ForeignCommand(ros_context)
+    bag = _run(tmp_path, 25, protocol, meanwhile=foreign)
+    assert foreign.sent_at_s is not None, foreign.status
+    summary = json.loads((bag.parent / "summary.json").read_text())
+    assert summary["state"] == "done" and summary["restarts"] >= 1, summary
+    signals = read_signals(bag)
+    t0_s = int(signals.metadata[EXPERIMENT_METADATA]["t0_ns"]) * 1e-9
+    segments = load_protocol(str(protocol)).schedule(None)
+    t_rel = signals.voltage_t_s - t0_s
+    last = (t_rel > segments[-1].end_s - 0.5) & (t_rel < segments[-1].end_s - 1.5 / RATE)  # the last 0.5 s
+    assert last.sum() >= 0.5 * RATE - 3
+    expected = [segments[-1].voltage_at(t) for t in t_rel[last]]
+    np.testing.assert_allclose(signals.voltage_V[last], expected, rtol=0.0, atol=0.5)
