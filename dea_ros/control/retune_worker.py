@@ -36,8 +36,13 @@ __all__ = ["RetuneWorker", "BackgroundRetune", "RETUNE_MODES", "serve"]
 RETUNE_MODES = ("process", "thread", "off")
 
 
-def serve(conn) -> None:
-    """The worker process's loop: a request in, ``("ok", plan)`` or ``("error", text)`` out; ends with the pipe."""
+def serve(conn, nice: int = 0) -> None:
+    """The worker process's loop: a request in, ``("ok", plan)`` or ``("error", text)`` out; ends with the pipe.
+
+    ``nice``: added to the process's niceness first (the control loop gets the CPU first when it is contended).
+    """
+    if nice > 0:
+        os.nice(int(nice))
     conn.send(("ready", os.getpid()))
     while True:
         try:
@@ -60,12 +65,13 @@ class RetuneWorker:
     :meth:`prepare` blocks (call it from a helper thread, never from the control loop).
     """
 
-    def __init__(self, timeout_s: float = 2.0, start_timeout_s: float = 120.0, method: str = "spawn"):
+    def __init__(self, timeout_s: float = 10.0, start_timeout_s: float = 120.0, method: str = "spawn", nice: int = 0):
         if not timeout_s > 0.0 or not start_timeout_s > 0.0:
             raise ValueError(f"timeout_s, start_timeout_s: must be > 0 s, got {timeout_s!r}, {start_timeout_s!r}")
         self.context = multiprocessing.get_context(method)
         self.timeout_s = float(timeout_s)
         self.start_timeout_s = float(start_timeout_s)
+        self.nice = int(nice)
         self.process = None
         self.conn = None
         self.ready = False
@@ -81,7 +87,7 @@ class RetuneWorker:
     def start(self) -> None:
         """Start the process (returns at once; the child imports the core meanwhile)."""
         parent, child = self.context.Pipe(duplex=True)
-        proc = self.context.Process(target=serve, args=(child,), name="dea_retune_worker", daemon=True)
+        proc = self.context.Process(target=serve, args=(child, self.nice), name="dea_retune_worker", daemon=True)
         proc.start()
         child.close()                    # the child's end lives in the child only: its exit is our EOF
         self.process, self.conn, self.ready, self.warm = proc, parent, False, False
@@ -150,8 +156,8 @@ class BackgroundRetune:
     ``failures`` (each with ``last_failure``).
     """
 
-    def __init__(self, adaptive: AdaptiveModel, mode: str = "process", timeout_s: float = 2.0,
-                 start_timeout_s: float = 120.0):
+    def __init__(self, adaptive: AdaptiveModel, mode: str = "process", timeout_s: float = 10.0,
+                 start_timeout_s: float = 120.0, nice: int = 0):
         if mode not in RETUNE_MODES:
             raise ValueError(f"retune mode: one of {RETUNE_MODES}, got {mode!r}")
         self.adaptive = adaptive
@@ -159,7 +165,7 @@ class BackgroundRetune:
         self.worker = None
         self.job = None
         if self.mode == "process":
-            self.worker = RetuneWorker(timeout_s, start_timeout_s)
+            self.worker = RetuneWorker(timeout_s, start_timeout_s, nice=nice)
             self.worker.start()
             self.job = self.worker.prepare
         elif self.mode == "thread":

@@ -20,7 +20,7 @@ from ..control import (
     PredictionErrorStats,
     TrackerConfig,
 )
-from .common import declare_bool, declare_float, declare_str
+from .common import declare_bool, declare_float, declare_int, declare_str
 
 __all__ = ["declare_health_parameters", "ControllerHealth", "ObserverHealth", "diagnostic_level"]
 
@@ -33,9 +33,11 @@ def declare_health_parameters(node, tracking_default: bool, retunes: bool = Fals
         declare_str(node, "retune_worker", "process",
                     "where a retune (window fit + gain design) is prepared: 'process' (a worker process started "
                     "at configure, off the control loop's GIL), 'thread' (a thread of the node), 'off' (never)")
-        declare_float(node, "retune_timeout_s", 2.0,
+        declare_float(node, "retune_timeout_s", 10.0,
                       "a retune not prepared within this time is dropped and the worker process replaced, s",
                       0.05, 600.0)
+        declare_int(node, "retune_worker_nice", 10,
+                    "niceness added to the worker process: the control loop gets a contended CPU first", 0, 19)
     declare_float(node, "health_warn_scale", 1.0,
                   "WARN thresholds of the tracked ratios x this (defaults: gain, static stiffness 2 %; "
                   "k1 15 %; creep time 30 %)", 0.1, 100.0)
@@ -74,7 +76,8 @@ class ControllerHealth:
         mode = str(p("retune_worker").value)
         if mode not in RETUNE_MODES:
             raise ValueError(f"parameter 'retune_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
-        self.retune = BackgroundRetune(self.adaptive, mode, float(p("retune_timeout_s").value))
+        self.retune = BackgroundRetune(self.adaptive, mode, float(p("retune_timeout_s").value),
+                                       nice=int(p("retune_worker_nice").value))
         self.logger = node.get_logger()
         self.failures_logged = 0
 
