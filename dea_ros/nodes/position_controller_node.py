@@ -51,8 +51,9 @@ feedforward and the gains follow the tracked model; false: the identified model 
 ``retune_worker`` ('process': the window fit and gain design run in a worker process started at configure,
 off the control loop's GIL, replaced when it dies or is later than ``retune_timeout_s``: no retune that time,
 counted as ``retune_failures``; 'thread': in a thread of the node; 'off'), ``retune_worker_nice``,
-``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``, ``health_prediction_error_m``, ``health_persistence_s``. The second DiagnosticStatus
-"<node>: membrane health" says what changed in words, with the tracked ratios and the reachable range.
+``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``, ``health_prediction_error_m``,
+``health_persistence_s``. The second DiagnosticStatus "<node>: membrane health" says what changed in words,
+with the tracked ratios and the reachable range.
 """
 from __future__ import annotations
 
