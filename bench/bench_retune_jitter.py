@@ -34,13 +34,21 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
+import pickle
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from dea_ros.control import AdaptiveModel, BackgroundRetune, ControllerConfig, ModelInverse, PositionController
+from dea_ros.control import (
+    AdaptiveModel,
+    BackgroundRetune,
+    ControllerConfig,
+    ModelInverse,
+    PositionController,
+    prepare_plan,
+)
 from dea_ros.model import preset
 from dea_ros.solvers.integrate import RealTimeStepper
 
@@ -125,6 +133,30 @@ def _stats(x) -> str:
     return f"{p50:.2f} / {p99:.2f} / {np.max(x) * 1e3:.1f}"
 
 
+def transfer_line(lp: Loop) -> str:
+    """What crossing the process boundary costs the node: the request built and pickled (the helper thread
+    pickles it; the control thread builds it), the plan unpickled (helper thread)."""
+    ad = lp.adaptive
+    window = ad.tracker.window()
+    t_req, t_pickle, t_plan = [], [], []
+    plan = prepare_plan(ad.request(window), ad.tracker)
+    for _ in range(20):
+        t0 = time.perf_counter()
+        req = ad.request(ad.tracker.window())
+        t1 = time.perf_counter()
+        blob = pickle.dumps(req, protocol=pickle.HIGHEST_PROTOCOL)
+        t2 = time.perf_counter()
+        pickle.loads(pickle.dumps(plan, protocol=pickle.HIGHEST_PROTOCOL))
+        t3 = time.perf_counter()
+        t_req.append(t1 - t0)
+        t_pickle.append(t2 - t1)
+        t_plan.append(t3 - t2)
+    med = lambda xs: np.median(xs) * 1e3  # noqa: E731
+    return (f"Crossing the process boundary (medians of 20): window copy + request {med(t_req):.2f} ms; "
+            f"request pickled ({len(blob) / 1e3:.0f} kB) {med(t_pickle):.2f} ms; plan pickled + unpickled "
+            f"({len(pickle.dumps(plan)) / 1e3:.1f} kB) {med(t_plan):.2f} ms.")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--reps", type=int, default=3)
@@ -158,6 +190,7 @@ def main(argv=None) -> None:
                 r = lp.retune
                 rows.append(f"| {rep + 1} | {m} | {_stats(late)} | {_stats(late[busy])} ({busy.sum()}) | {skipped} | "
                             f"{r.applied - before[1]} / {r.failures - before[2]} | {la0:.1f} -> {la1:.1f} |")
+        transfer = transfer_line(loops["process"])
     finally:
         for lp in loops.values():
             lp.retune.close()
@@ -178,6 +211,7 @@ def main(argv=None) -> None:
         allx = np.concatenate(pooled[m][0])
         busyx = np.concatenate(pooled[m][1])
         print(f"| {m} | {_stats(allx)} | {_stats(busyx)} ({busyx.size} updates) |")
+    print("\n" + transfer)
 
 
 if __name__ == "__main__":
