@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import multiprocessing
 import os
+import signal
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 
@@ -40,7 +41,9 @@ def serve(conn, nice: int = 0) -> None:
     """The worker process's loop: a request in, ``("ok", plan)`` or ``("error", text)`` out; ends with the pipe.
 
     ``nice``: added to the process's niceness first (the control loop gets the CPU first when it is contended).
+    SIGINT is ignored (a Ctrl-C in the terminal reaches the whole process group): the owner ends the worker.
     """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if nice > 0:
         os.nice(int(nice))
     conn.send(("ready", os.getpid()))
