@@ -216,7 +216,7 @@ def _alive(pid: int) -> bool:
         return f.read().split(")")[-1].split()[0] != "Z"
 
 
-def test_thread_mode_applies_the_same_retunes(rig_truth):
+def test_thread_mode_still_retunes(rig_truth):
     plant = rig_truth.replace(relative_permittivity=rig_truth.relative_permittivity * 0.95)
     bg = _requests(rig_truth, plant, 8.0, seed=3, retune=lambda ad: BackgroundRetune(ad, "thread"))
     try:
