@@ -117,6 +117,7 @@ class RetuneWorker:
                 status, value = conn.recv()
                 self.warm = True
             except (EOFError, OSError) as exc:
+                self.process.join(1.0)
                 self._fail(f"the worker died (exit code {self.process.exitcode}; {type(exc).__name__})")
         if status != "ok":
             raise RetuneWorkerError(f"the plan failed in the worker: {value}")
