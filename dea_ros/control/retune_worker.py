@@ -102,8 +102,10 @@ class RetuneWorker:
             if self.closed:
                 raise RetuneWorkerError("the retune worker is closed")
             if self.process is None or not self.process.is_alive():
-                self._replace()
-            conn = self.conn
+                self._replace()               # died while idle: a new one serves this request
+            conn, proc = self.conn, self.process
+            if conn is None:
+                raise RetuneWorkerError("the retune worker is closed")
             try:
                 if not self.ready:
                     if not conn.poll(self.start_timeout_s):
@@ -116,9 +118,9 @@ class RetuneWorker:
                     self._fail(f"no answer within {timeout:g} s (retune_timeout_s; worker replaced)")
                 status, value = conn.recv()
                 self.warm = True
-            except (EOFError, OSError) as exc:
-                self.process.join(1.0)
-                self._fail(f"the worker died (exit code {self.process.exitcode}; {type(exc).__name__})")
+            except (EOFError, OSError) as exc:       # (also: closed meanwhile by close())
+                proc.join(1.0)
+                self._fail(f"the worker died (exit code {proc.exitcode}; {type(exc).__name__})")
         if status != "ok":
             raise RetuneWorkerError(f"the plan failed in the worker: {value}")
         return value
