@@ -228,3 +228,30 @@ def test_thread_mode_still_retunes(rig_truth):
         assert math.isclose(bg.adaptive.tracker.ratios["electrostatic_gain"], 0.95, abs_tol=0.01)
     finally:
         bg.close()
+
+
+def test_closing_during_a_request_ends_it_with_the_worker(rig_truth):
+    """The node cleaned up while a retune is prepared: the worker ends, the waiting call says so."""
+    ad, requests = _requests(rig_truth, rig_truth, 4.0, seed=2)
+    w = RetuneWorker(timeout_s=60.0)
+    w.start()
+    w.prepare(requests[-1])
+    pid, outcome = w.pid, []
+
+    def call():
+        try:
+            outcome.append(w.prepare(requests[-1]))
+        except RetuneWorkerError as exc:
+            outcome.append(exc)
+
+    th = threading.Thread(target=call)
+    th.start()
+    deadline = time.monotonic() + 30.0
+    while th.is_alive() and _state(pid) != "R" and time.monotonic() < deadline:
+        time.sleep(0.002)
+    w.close()
+    th.join(30.0)
+    assert not th.is_alive() and len(outcome) == 1     # answered (the plan was faster) or RetuneWorkerError
+    assert not _alive(pid) and w.pid is None           # and nothing is started again
+    with pytest.raises(RetuneWorkerError, match="closed"):
+        w.prepare(requests[-1])
