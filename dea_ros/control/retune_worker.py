@@ -118,7 +118,11 @@ class RetuneWorker:
                     self._fail(f"no answer within {timeout:g} s (retune_timeout_s; worker replaced)")
                 status, value = conn.recv()
                 self.warm = True
-            except (EOFError, OSError) as exc:       # (also: closed meanwhile by close())
+            except (EOFError, OSError, TypeError) as exc:
+                if self.closed:                      # close() from another thread took the pipe away
+                    raise RetuneWorkerError("the retune worker was closed during the request") from None
+                if isinstance(exc, TypeError):       # not a pipe's end: e.g. an unpicklable request
+                    raise
                 proc.join(1.0)
                 self._fail(f"the worker died (exit code {proc.exitcode}; {type(exc).__name__})")
         if status != "ok":

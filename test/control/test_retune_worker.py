@@ -26,6 +26,8 @@ from dea_ros.control import (
 from dea_ros.errors import RetuneWorkerError
 
 U_MAX = 3150.0
+#: an exception in a helper thread (the node's retune helper, the tests' callers) fails the test
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
 
 def _requests(ident, plant, seconds, seed, retune=None):
