@@ -23,6 +23,7 @@ from .experiments import ExperimentSet
 from .frequency_points import FrequencyPoint
 
 __all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "classification_kinds",
+           "leave_out_unreproduced",
            "sweep_for"]
 
 
@@ -151,18 +152,18 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
             by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
             for k in sel:
                 out.append(_classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m))
-    _leave_out_unreproduced(out)
+    leave_out_unreproduced(out)
     return out
 
 
 #: A fitted record whose measured RMS and the nearest model response of its kind differ by more than
-#: this factor is not reproduced by the model at the current parameters (see _leave_out_unreproduced).
+#: this factor is not reproduced by the model at the current parameters (see leave_out_unreproduced).
 UNREPRODUCED_RATIO = 2.0
 #: ... and is left out only while such records are at most this share of the fitted ones.
 UNREPRODUCED_MAX_SHARE = 0.25
 
 
-def _leave_out_unreproduced(entries: list) -> None:
+def leave_out_unreproduced(entries: list) -> None:
     """Leave out the isolated records that no model response of their kind comes near (a factor
     :data:`UNREPRODUCED_RATIO` in RMS): near a jump of the resonance (a fold), the record can be on a
     branch the model at the current parameters does not have yet (its fold a little below the
