@@ -48,7 +48,7 @@ from .joint_fit import JointObjective
 from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
-           "first_fit_from_result", "candidate_records", "candidate_information", "plan_experiments",
+           "first_fit_from_result", "fit_widths", "candidate_records", "candidate_information", "plan_experiments",
            "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS",
            "WIDTH_CAP", "T95"]
 
@@ -376,6 +376,14 @@ def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
             den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
             out[label] = float(cov[i, j] / den) if den > 0 else float("nan")
     return out
+
+
+def fit_widths(first: FirstFit) -> tuple:
+    """(relative 95 % half-widths, pair correlations) of a fit from its own Fisher information (the planner's
+    "before"; of a two-pass fit: the realised widths, comparable with a plan's expected ones)."""
+    scale = first.scale()
+    info = first.information * np.outer(scale, scale)
+    return dict(zip(first.names, map(float, _widths(first, info)))), _correlations(first, info)
 
 
 def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits | None = None,
