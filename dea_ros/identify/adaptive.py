@@ -46,7 +46,7 @@ def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> P
     """The planner's limits for a second pass of ``base``: no voltage above the first pass's peak (nor
     ``max_voltage_V``, the rig's maximum, where given), and every record as long as the first pass's of
     its kind (its sines' settle/measure, its step's pre/hold, its static hold/measure)."""
-    peak = _peak_V(base.schedule(max_voltage_V))
+    peak = _peak_V(base.schedule())
     kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak}
     fields = {"sine": (("settle_s", "settle_s"), ("measure_s", "measure_s")),
               "step": (("pre_s", "step_pre_s"), ("hold_s", "step_hold_s")),
