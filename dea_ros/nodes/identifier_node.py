@@ -129,7 +129,8 @@ class IdentifierNode(Node):
         self.protocol_ref = declare_str(self, "protocol", "paper", "protocol name in config/protocols or a YAML path")
         self.output_dir = Path(declare_str(self, "output_dir", "runs", "folder of the runs"))
         run_name = declare_str(self, "run_name", "", "name of this run (default: date and time)")
-        self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends")
+        self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends (an adaptive "
+                                     "protocol plans its second pass from a first fit regardless)")
         self.exit_when_done = declare_bool(self, "exit_when_done", False, "stop the node when done (demo)")
         self.command_rate_hz = declare_float(self, "command_rate_hz", 500.0, "voltage_cmd rate, Hz", 10.0, 5000.0)
         self.period_ns = int(round(1e9 / self.command_rate_hz))  # one command period (update), ns
@@ -427,7 +428,7 @@ class IdentifierNode(Node):
             self.cmd_pub.publish(Float64(data=0.0))
             self.segment_index = len(self.segments)
             self.get_logger().info(f"protocol complete (pass {self.pass_number})")
-            if self.pass_number == 1 and self.protocol.adaptive and self.identify:
+            if self.pass_number == 1 and self.protocol.adaptive:  # (identify: false: the final fit is left out)
                 self.end_first_pass()
                 self.publish_ack(now_ns)
                 return
