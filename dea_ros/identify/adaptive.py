@@ -42,12 +42,26 @@ def _peak_V(segments) -> float:
     return float(peak)
 
 
+def _rest_before_step_s(segments) -> float:
+    """The time at 0 V before the schedule's first step (rest segments and static holds at 0 V), s."""
+    k = next((i for i, s in enumerate(segments) if s.kind == "step"), 0)
+    rest = 0.0
+    while k > 0 and (segments[k - 1].kind == "rest" or segments[k - 1].info.get("voltage_V", 1.0) == 0.0):
+        k -= 1
+        rest += segments[k].end_s - segments[k].start_s
+    return rest
+
+
 def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> PlanLimits:
     """The planner's limits for a second pass of ``base``: no voltage above the first pass's peak (nor
     ``max_voltage_V``, the rig's maximum, where given), and every record as long as the first pass's of
-    its kind (its sines' settle/measure, its step's pre/hold, its static hold/measure)."""
-    peak = _peak_V(base.schedule())
-    kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak}
+    its kind (its sines' settle/measure, its step's pre/hold, its static hold/measure; a step after at
+    least the rest at 0 V the first pass gave its step: the creep settles in five creep times, but the
+    ringing of the mass may take longer, and the protocol's author chose that rest for it)."""
+    schedule = base.schedule()
+    peak = _peak_V(schedule)
+    kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak,
+          "step_rest_min_s": max(2.0, _rest_before_step_s(schedule))}
     fields = {"sine": (("settle_s", "settle_s"), ("measure_s", "measure_s")),
               "step": (("pre_s", "step_pre_s"), ("hold_s", "step_hold_s")),
               "static": (("hold_s", "static_hold_s"), ("measure_s", "static_measure_s"))}

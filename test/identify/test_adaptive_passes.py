@@ -19,7 +19,7 @@ from dea_ros.identify.adaptive import adaptive_markdown, adaptive_summary, limit
 from dea_ros.identify.bag_experiments import experiment_passes, experiment_record, experiments_from_bag, \
     pass_metadata_name
 from dea_ros.identify.pipeline import identify
-from dea_ros.identify.protocols import Protocol
+from dea_ros.identify.protocols import Protocol, load_protocol
 from dea_ros.identify.synth import synthesize_experiments
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.solvers import SampledVoltage, simulate
@@ -146,6 +146,9 @@ def test_limits_follow_the_first_pass():
     assert limits.max_voltage_V == 2500.0 and limits.settle_s == 2.0 and limits.measure_s == 1.0
     assert (limits.step_pre_s, limits.step_hold_s) == (0.3, 2.0)
     assert (limits.static_hold_s, limits.static_measure_s) == (1.5, 0.5)
+    assert limits.step_rest_min_s == 2.0          # pass 1's step follows 2500 V directly: the default
+    quick = limits_for_protocol(load_protocol("quick_adaptive"))
+    assert quick.step_rest_min_s == 10.0           # its step: 3 s at 0 V (the staircase's last level) + 7 s rest
     assert limits_for_protocol(PASS1, max_voltage_V=2100.0).max_voltage_V == 2100.0
 
 
