@@ -315,7 +315,8 @@ class IdentifierNode(Node):
         extra = self.second_pass.record_extra() if self.pass_number == 2 else {}
         if self.recording_error:
             extra["error"] = self.recording_error
-        return experiment_record(self.protocol, self.segments, self.t0_ns, completed, aborted, self.command_rate_hz,
+        protocol = self.second_pass.protocol if self.pass_number == 2 else self.protocol
+        return experiment_record(protocol, self.segments, self.t0_ns, completed, aborted, self.command_rate_hz,
                                  self.membrane_override or self.protocol.membrane, self.pass_number, extra)
 
     def record_experiment_metadata(self, completed: int, aborted: bool) -> None:

@@ -85,6 +85,7 @@ def check_adaptive_run(run: Path, log: str) -> None:
     assert len(passes) == 2
     (info1, t1, segs1), (info2, t2, segs2) = passes
     assert info1["aborted"] == "false" and info2["aborted"] == "false"
+    assert (info1["protocol"], info2["protocol"]) == ("adaptive_check", "adaptive_check-planned")
     assert int(info2["segments_completed"]) == len(segs2)
     assert t2 >= t1 + segs1[-1]["end_s"]                # pass 2 after pass 1 (and the first fit at 0 V)
     # pass 2 runs the planner's picks: every sine and static level of the plan, and nothing else
