@@ -10,8 +10,8 @@ first pass's, no voltage above its peak, offsets allowed) -> the planned schedul
 -> the identification from both passes (fit_bag of the two-pass bag, as ``dea-ros identify BAG``).
 
 * one pass: static staircase, rest, a 2.2 kV step, |2500 sin| at the 17 frequencies placed on each
-  membrane's own resonance (bench_coverage_family.seventeen), settle 5 s + 2 s measured;
-* two passes: the same with the paper's 4 frequencies, then the planned pass with
+  membrane's own resonance (bench_coverage_family.seventeen) but 0.2 Hz (MIN_HZ), settle 5 s + 2 s measured;
+* two passes: the same with the paper's 4 frequencies but 0.2 Hz, then the planned pass with
   ``adaptive_budget_s`` = the one-pass protocol's duration - the first pass's - the planned pass's final
   1 s rest: the same total experiment time at most.
 
@@ -53,8 +53,11 @@ from dea_ros.sim.plant import LASER_QUANTISATION_M  # noqa: E402
 from dea_ros.solvers import SampledVoltage, simulate  # noqa: E402
 
 T0_NS = 1_700_000_000_000_000_000
+#: the paper's 0.2 Hz is left out of both protocols: its 2 s measurement is one period, and the bag
+#: extraction's 10 ms guard at the window's end leaves less than one (ExperimentError; issue for the lead)
+MIN_HZ = 1.0
 GAP_S = 30.0      # 0 V between the passes (the first fit); pass 2 is integrated from rest
-RATE_HZ = 1000.0  # applied-voltage updates and laser samples
+RATE_HZ = 500.0   # applied-voltage updates and laser samples (the demo's laser rate)
 
 
 def _protocol(name: str, membrane: str, mass_kg: float, freqs, budget_s: float | None = None) -> Protocol:
@@ -107,11 +110,11 @@ def one_run(p, f_r: float, seed: int, work: Path) -> dict:
                                   gamma_Pa=a2.gamma_Pa)
     geometry = work / f"{p.name}_nominal.yaml"
     nominal.to_yaml(geometry)
-    one_proto = _protocol("one_pass", str(geometry), p.mass_kg, seventeen(f_r))
+    one_proto = _protocol("one_pass", str(geometry), p.mass_kg, [f for f in seventeen(f_r) if f >= MIN_HZ])
     one_s = one_proto.duration_s()
-    first_proto = _protocol("two_pass", str(geometry), p.mass_kg, PAPER_HZ, budget_s=1.0)
-    budget = one_s - first_proto.duration_s() - 1.0
-    first_proto = _protocol("two_pass", str(geometry), p.mass_kg, PAPER_HZ, budget_s=budget)
+    paper = [f for f in PAPER_HZ if f >= MIN_HZ]
+    budget = one_s - _protocol("two_pass", str(geometry), p.mass_kg, paper).duration_s() - 1.0
+    first_proto = _protocol("two_pass", str(geometry), p.mass_kg, paper, budget_s=budget)
     t0 = time.perf_counter()
     segs = one_proto.schedule()
     bag = _write(work / f"{p.name}_{seed}_one", [_record(p, segs, seed, 0.0)],
