@@ -55,9 +55,10 @@ def _rest_before_step_s(segments) -> float:
 def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> PlanLimits:
     """The planner's limits for a second pass of ``base``: no voltage above the first pass's peak (nor
     ``max_voltage_V``, the rig's maximum, where given), and every record as long as the first pass's of
-    its kind (its sines' settle/measure, its step's pre/hold, its static hold/measure; a step after at
-    least the rest at 0 V the first pass gave its step: the creep settles in five creep times, but the
-    ringing of the mass may take longer, and the protocol's author chose that rest for it)."""
+    its kind (its sines' settle/measure with at least two periods measured, its step's pre/hold, its
+    static hold/measure; a step after at least the rest at 0 V the first pass gave its step: the creep
+    settles in five creep times, but the ringing of the mass may take longer, and the protocol's author
+    chose that rest for it)."""
     schedule = base.schedule()
     peak = _peak_V(schedule)
     kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak,
@@ -69,6 +70,9 @@ def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> P
         for key, name in fields.get(seg.get("kind"), ()):
             if key in seg and name not in kw:
                 kw[name] = float(seg[key])
+    # at least two measured periods: the bag extraction's guard at a window's end (the command lead) leaves
+    # a one-period record less than a period, which it refuses
+    kw["min_frequency_Hz"] = max(PlanLimits.min_frequency_Hz, 1.01 / kw.get("measure_s", PlanLimits.measure_s))
     return PlanLimits(**kw)
 
 
