@@ -217,5 +217,5 @@ def callback_cost_lines(ident, cfg, rig0, seconds=30.0, seed=7) -> list:
             f"| tracker in the callback (AdaptiveModel.observe + due: EKF, window buffer) | {q(t_track)} |",
             f"| both (the callback's physics) | {q(both)} |",
             f"| health assess (1 Hz diagnostics timer, not per sample) | {q(t_assess)} |",
-            "| off the loop: window fit + retune design (worker thread), per retune, ms | "
+            "| off the loop: window fit + retune design (the node: worker process), per retune, ms | "
             + " / ".join(f"{v / 1e6:.0f}" for v in np.percentile(t_prepare, [50, 99, 99.9])) + " |", ""]

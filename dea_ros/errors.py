@@ -21,7 +21,7 @@ __all__ = [
     "ExperimentError", "StaticFitError", "DynamicFitError", "JointFitError", "IdentificationError",
     "PlanningError", "ProtocolError",
     # control
-    "UnreachableReferenceError",
+    "UnreachableReferenceError", "RetuneWorkerError",
     # study
     "SpecError", "EngineError", "StudyInterrupted",
     # bags
@@ -109,6 +109,10 @@ class ProtocolError(DeaRosError, ValueError):
 # --------------------------------------------------------------------------- control
 class UnreachableReferenceError(DeaRosError, ValueError):
     """A reference the actuator cannot follow (outside the range, or needing u^2 < 0 / too fast)."""
+
+
+class RetuneWorkerError(DeaRosError, RuntimeError):
+    """The retune worker process died, answered too late or failed: no retune this time (it is restarted)."""
 
 
 # --------------------------------------------------------------------------- study

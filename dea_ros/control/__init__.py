@@ -14,17 +14,19 @@
   joint commands);
 * :mod:`.tracking`: :class:`ModelTracker`, the membrane's drift (electrostatic gain, static and viscoelastic
   stiffness, creep time) estimated online; :mod:`.adaptive`: the controller retuned on the tracked model;
+  :mod:`.retune_worker`: that retune prepared in a long-lived worker process, off the control loop's GIL;
   :mod:`.health`: what changed, in words, with WARN/ERROR levels (/diagnostics);
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
-from .adaptive import AdaptiveModel, RetunePlan, apply_retune, prepare_retune
+from .adaptive import AdaptiveModel, RetunePlan, RetuneRequest, apply_retune, prepare_plan, prepare_retune
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
 from .health import HealthMonitor, HealthReport, HealthThresholds, PredictionErrorStats, describe_drift
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 from .monitor import SampleStream, TrackingWindow
 from .prediction import ModelPredictor
+from .retune_worker import RETUNE_MODES, BackgroundRetune, RetuneWorker
 from .reference import (
     Feasibility,
     Hold,
@@ -50,5 +52,6 @@ __all__ = [
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
     "StreamedReference", "StreamDecision",
     "ModelTracker", "TrackedModel", "TrackerConfig", "AdaptiveModel", "RetunePlan", "apply_retune", "prepare_retune",
+    "RetuneRequest", "prepare_plan", "RetuneWorker", "BackgroundRetune", "RETUNE_MODES",
     "HealthMonitor", "HealthReport", "HealthThresholds", "PredictionErrorStats", "describe_drift",
 ]

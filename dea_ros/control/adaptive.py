@@ -3,12 +3,16 @@
 :class:`AdaptiveModel` feeds :class:`~.tracking.ModelTracker` with every sample the controller sees
 (measured d, commanded voltage, saturation) and, every ``retune_period_s``, when a tracked ratio
 moved by more than ``retune_threshold`` since the model in use, retunes the controller in two
-steps, so that the slow part can run off the control loop (a node: in a worker thread):
+steps, so that the slow part can run off the control loop (a node: in a worker process,
+:mod:`.retune_worker`):
 
-* :meth:`AdaptiveModel.prepare` (slow: ~0.1 s each): the windowed least squares of the last
-  samples (:mod:`.window_fit`: the tracker's EKF alone converges slowly on k1 and the creep time),
-  then :func:`prepare_retune`: the inverse (eqs. 5, 20 with the tracked parameters) and the
-  feedback gains (pole placement on it, as at start-up);
+* :func:`prepare_plan` of a :class:`RetuneRequest` (slow: ~0.1-0.3 s each; :meth:`AdaptiveModel.prepare`
+  in this process): the windowed least squares of the last samples (:mod:`.window_fit`: the
+  tracker's EKF alone converges slowly on k1 and the creep time), then :func:`prepare_retune`: the
+  inverse (eqs. 5, 20 with the tracked parameters) and the feedback gains (pole placement on it, as
+  at start-up). The request holds plain data only (the window's arrays, the tracker's estimate, the
+  parameters and settings: a few hundred kB pickled), the plan is ~2 kB: both cross a process
+  boundary cheaply, the controller never does;
 * :func:`apply_retune` (fast): swaps them into the controller, bumpless -- the integrator absorbs
   the change of the feedforward at the current reference, so the command does not jump -- and
   keeps the reference, the strain integrator's state and the PID's state.
@@ -18,8 +22,11 @@ steps, so that the slow part can run off the control loop (a node: in a worker t
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from ..model import MembraneParameters
 from .controller import ControlOutput, ControllerConfig, PositionController
@@ -28,7 +35,7 @@ from .inverse import ModelInverse
 from .tracking import ModelTracker, TrackerConfig
 from .window_fit import WindowFit
 
-__all__ = ["RetunePlan", "prepare_retune", "apply_retune", "AdaptiveModel"]
+__all__ = ["RetunePlan", "RetuneRequest", "prepare_plan", "prepare_retune", "apply_retune", "AdaptiveModel"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +50,22 @@ class RetunePlan:
     config: ControllerConfig | None = None   # the controller's settings with the tracked loop delay
 
 
+@dataclass(frozen=True)
+class RetuneRequest:
+    """All that :func:`prepare_plan` needs, as plain data (picklable; no controller, no tracker)."""
+
+    identified: MembraneParameters
+    tracker_config: TrackerConfig
+    x: tuple                       # the tracker's estimate: theta_g, theta_h, theta_1, ln(tau/tau0)
+    extra_delay_s: float           # the tracker's extra loop delay, s
+    in_use: dict                   # the ratios of the model in use (1 = identified)
+    config: ControllerConfig       # the controller's settings now
+    configured: ControllerConfig   # its settings at start-up (the configured loop delay)
+    retune_threshold: float
+    delay_deadband_s: float
+    window: np.ndarray | None      # (3, n): d m, applied voltage V, saturated; None: no window fit
+
+
 #: the robustness bound is relaxed by this factor when a measured loop delay admits no design at the configured one
 SENSITIVITY_RELAXATION = 1.3
 
@@ -54,7 +77,13 @@ def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: 
     An explicit ``config`` (the measured loop delay) for which no gains meet ``max_sensitivity``
     is designed once more with the bound relaxed by :data:`SENSITIVITY_RELAXATION`.
     """
-    cfg = config or ctl.config
+    return design_retune(params, config or ctl.config, ratios, relax=config is not None)
+
+
+def design_retune(params: MembraneParameters, cfg: ControllerConfig, ratios: dict | None = None,
+                  relax: bool = True) -> RetunePlan:
+    """:func:`prepare_retune` on plain settings: with ``relax``, a ``cfg`` admitting no gains is designed
+    once more with the robustness bound x :data:`SENSITIVITY_RELAXATION` (ValueError when even that fails)."""
     inverse = ModelInverse(params, cfg.max_voltage_V)
     lo, hi = inverse.reachable_range_m
     d_op = 0.5 * (lo + hi) if cfg.operating_point_m is None else float(cfg.operating_point_m)
@@ -62,11 +91,43 @@ def prepare_retune(ctl: PositionController, params: MembraneParameters, ratios: 
         gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s, cfg.max_sensitivity,
                              cfg.max_noise_gain)
     except ValueError:
-        if config is None:
+        if not relax:
             raise
         gains = design_gains(inverse, d_op, cfg.design_delay_s, cfg.sample_period_s,
                              cfg.max_sensitivity * SENSITIVITY_RELAXATION, cfg.max_noise_gain)
-    return RetunePlan(params, inverse, gains, dict(ratios or {}), config=config)
+    return RetunePlan(params, inverse, gains, dict(ratios or {}), config=cfg if relax else None)
+
+
+@functools.lru_cache(maxsize=4)
+def _tracker_for(params: MembraneParameters, config: TrackerConfig) -> ModelTracker:
+    """A tracker of the identified membrane, used only for its pure methods (fit, absorbed, parameters)."""
+    return ModelTracker(params, config)
+
+
+def prepare_plan(request: RetuneRequest, tracker: ModelTracker | None = None) -> RetunePlan:
+    """Slow (run it off the control loop): the window's fit, and the retune when a ratio moved enough.
+
+    ``tracker``: one of the request's identified membrane and tracker settings (default: a cached one);
+    only its pure methods are used, its state is the request's.
+    """
+    r = request
+    tracker = tracker or _tracker_for(r.identified, r.tracker_config)
+    window = r.window
+    fit = tracker.fit(window) if window is not None and len(window) else None
+    x = tracker.absorbed(fit, r.x)
+    params = tracker.tracked_parameters(x)
+    ratios = {k: v for k, v in zip(r.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
+    extra = tracker.absorbed_delay(fit, r.extra_delay_s)
+    config = r.configured if abs(extra) < r.delay_deadband_s else dataclasses.replace(
+        r.configured, loop_delay_s=max(r.configured.loop_delay_s + extra, 0.0))
+    if (max(abs(ratios[k] / r.in_use[k] - 1.0) for k in ratios) < r.retune_threshold
+            and config.loop_delay_s == r.config.loop_delay_s):
+        return RetunePlan(params, None, None, ratios, fit)
+    try:
+        plan = design_retune(params, config, ratios)
+    except ValueError:          # no design even relaxed for the measured delay: the configured one
+        plan = design_retune(params, r.configured, ratios)
+    return dataclasses.replace(plan, fit=fit)
 
 
 def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = None) -> None:
@@ -142,28 +203,16 @@ class AdaptiveModel:
         window = self.tracker.window()
         return () if window is None else window
 
-    def prepare(self, window) -> RetunePlan:
-        """Slow (run it off the control loop): the window's fit, and the retune when a ratio moved enough."""
-        fit = self.tracker.fit(window) if window is not None and len(window) else None
-        x = self.tracker.absorbed(fit)
-        params = self.tracker.tracked_parameters(x)
-        ratios = {k: v for k, v in zip(self.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
-        config = self.delay_config(self.tracker.absorbed_delay(fit))
-        if (max(abs(ratios[k] / self.in_use[k] - 1.0) for k in ratios) < self.retune_threshold
-                and config.loop_delay_s == self.ctl.config.loop_delay_s):
-            return RetunePlan(params, None, None, ratios, fit)
-        try:
-            plan = prepare_retune(self.ctl, params, ratios, config)
-        except ValueError:          # no design even relaxed for the measured delay: the configured one
-            plan = prepare_retune(self.ctl, params, ratios, self.configured)
-        return dataclasses.replace(plan, fit=fit)
+    def request(self, window) -> RetuneRequest:
+        """The plain data of a retune on ``window`` (cheap: the estimate now, the settings, the window)."""
+        tr = self.tracker
+        return RetuneRequest(self.identified, tr.config, tuple(float(v) for v in tr.x), float(tr.extra_delay_s),
+                             dict(self.in_use), self.ctl.config, self.configured, self.retune_threshold,
+                             self.delay_deadband_s, window if window is not None and len(window) else None)
 
-    def delay_config(self, extra_delay_s: float) -> ControllerConfig:
-        """The configured settings, with the tracked extra loop delay once it exceeds the dead band."""
-        if abs(extra_delay_s) < self.delay_deadband_s:
-            return self.configured
-        return dataclasses.replace(self.configured,
-                                   loop_delay_s=max(self.configured.loop_delay_s + extra_delay_s, 0.0))
+    def prepare(self, window) -> RetunePlan:
+        """Slow (run it off the control loop): :func:`prepare_plan` of :meth:`request` in this process."""
+        return prepare_plan(self.request(window), self.tracker)
 
     def apply(self, plan: RetunePlan | None, t_s: float) -> None:
         if plan is None:

@@ -247,9 +247,10 @@ class ModelTracker:
                           cfg.sample_period_s, cfg.filter_Hz, cfg.bounds,
                           cfg.max_filtered_acceleration_m_per_s2, cfg.window)
 
-    def absorbed(self, fit: WindowFit | None) -> np.ndarray:
-        """The estimate after :meth:`absorb` (informative ratios only, bounded jump, physical bounds)."""
-        x = self.x.copy()
+    def absorbed(self, fit: WindowFit | None, x=None) -> np.ndarray:
+        """The estimate (``x``, default the current one) after :meth:`absorb` (informative ratios only,
+        bounded jump, physical bounds)."""
+        x = np.array(self.x if x is None else x, dtype=float)
         if fit is None:
             return x
         for i, (xi, ok, jump) in enumerate(zip(fit.x, fit.informative, self.config.window.max_jump)):
@@ -257,10 +258,11 @@ class ModelTracker:
                 x[i] = min(max(x[i] + min(max(xi - x[i], -jump), jump), self.lo[i]), self.hi[i])
         return x
 
-    def absorbed_delay(self, fit: WindowFit | None) -> float:
-        """The extra loop delay after :meth:`absorb` (moved only by an informative fit, inside the grid), s."""
+    def absorbed_delay(self, fit: WindowFit | None, extra_delay_s: float | None = None) -> float:
+        """The extra loop delay (``extra_delay_s``, default the current one) after :meth:`absorb` (moved
+        only by an informative fit, inside the grid), s."""
         if fit is None or not fit.delay_informative:
-            return self.extra_delay_s
+            return self.extra_delay_s if extra_delay_s is None else float(extra_delay_s)
         lo, hi, _ = self.config.window.delay_grid_s
         return min(max(fit.extra_delay_s, lo), hi)
 

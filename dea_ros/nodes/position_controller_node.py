@@ -47,10 +47,13 @@ Parameters: ``params_file`` (the identifier's params.yaml or a preset), ``margin
 ``max_noise_gain`` (feedback design rule), ``min_move_time_s``, ``feedforward``, ``feedback``,
 ``sensor_timeout_s``, ``joint_name``, ``joint_commands_topic``, ``joint_states_rate_hz``, ``autostart``;
 membrane health (:mod:`.membrane_health`): ``track_model`` (online tracking of the membrane's drift; the
-feedforward and the gains follow the tracked model, retuned in a worker thread; false: the identified
-model throughout), ``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``,
-``health_prediction_error_m``, ``health_persistence_s``. The second DiagnosticStatus
-"<node>: membrane health" says what changed in words, with the tracked ratios and the reachable range.
+feedforward and the gains follow the tracked model; false: the identified model throughout),
+``retune_worker`` ('process': the window fit and gain design run in a worker process started at configure,
+off the control loop's GIL, replaced when it dies or is later than ``retune_timeout_s``: no retune that time,
+counted as ``retune_failures``; 'thread': in a thread of the node; 'off'), ``retune_worker_nice``,
+``health_warn_scale``, ``health_error_scale``, ``health_prediction_warn_m``, ``health_prediction_error_m``,
+``health_persistence_s``. The second DiagnosticStatus "<node>: membrane health" says what changed in words,
+with the tracked ratios and the reachable range.
 """
 from __future__ import annotations
 
@@ -137,7 +140,7 @@ class PositionControllerNode(LifecycleNode):
                      "for mock_hardware_node's lockstep_topics")
         declare_bool(self, "publish_stamped_command", False,
                      "also publish ~/command_stamped (BatteryState: the command stamped with its sample's time)")
-        declare_health_parameters(self, tracking_default=True)
+        declare_health_parameters(self, tracking_default=True, retunes=True)
         self.ctl: PositionController | None = None
         self.health: ControllerHealth | None = None
         self.active = False
@@ -194,11 +197,12 @@ class PositionControllerNode(LifecycleNode):
         try:
             params = load_parameters(source)
             self.ctl = PositionController(params, self.make_config(params))
+            self.health = ControllerHealth(self, self.ctl, float(self.p("sample_period_s")))  # starts the worker
         except (ParameterError, FileNotFoundError, SafetyConfigError, ValueError) as exc:
-            self.get_logger().error(f"configure failed: parameter 'params_file' ({source!r}) or limits: {exc}")
+            self.get_logger().error(f"configure failed: parameter 'params_file' ({source!r}), limits or "
+                                    f"retune_worker: {exc}")
             self.ctl = None
             return TransitionCallbackReturn.FAILURE
-        self.health = ControllerHealth(self, self.ctl, float(self.p("sample_period_s")))
         self.voltage_pub = self.create_lifecycle_publisher(Float64, TOPIC_VOLTAGE_CMD, COMMAND_QOS)
         self.joint_pub = self.create_lifecycle_publisher(JointState, TOPIC_JOINT_STATES, 10)
         self.diag_pub = self.create_lifecycle_publisher(DiagnosticArray, "/diagnostics", 10)

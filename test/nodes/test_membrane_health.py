@@ -1,6 +1,10 @@
 """Membrane health on /diagnostics over real rclpy: model_node (prediction error + tracked drift) and
 position_controller_node (tracked drift, reachable range), each against a plant that is not its model."""
 import importlib.util
+import os
+import re
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -108,9 +112,79 @@ def test_position_controller_node_reports_drift_and_the_current_range(ros_contex
         assert "electrostatic gain" in status.message and "below" in status.message
         assert float(values["tracked_electrostatic_gain_ratio"]) < 0.98
         assert int(values["retunes"]) >= 1                       # the controller runs on the tracked model
+        assert values["retune_worker"].startswith("process (pid ") and values["retune_failures"] == "0"
         assert float(values["tracked_reachable_min_m"]) < float(values["tracked_reachable_max_m"])
         d_end = np.array([h[1] for h in plant.history[-100:]])
         assert abs(d_end.mean() - targets[5]) < 2e-6             # still controlling after the retunes
+    finally:
+        PC.stop(proc)
+        ex.shutdown()
+        node.destroy_node()
+
+
+def _worker(diags):
+    """(pid, starts, plans, failures) of the controller's retune worker from its latest health status."""
+    values = {kv.key: kv.value for kv in _health(diags, "membrane health")[-1].values}
+    pid, starts = re.match(r"process \(pid (\d+), started (\d+) time", values["retune_worker"]).groups()
+    return int(pid), int(starts), int(values["retune_plans"]), int(values["retune_failures"])
+
+
+def _gone(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def test_position_controller_node_survives_its_retune_worker_and_takes_it_along(ros_context, spin_until):
+    """The worker process killed under the running node: the loop goes on commanding every sample, a new
+    worker serves the next retunes; the node killed with SIGKILL: its worker exits too."""
+    ns = "/pc_worker"
+    inv = ModelInverse(load_parameters(PC.TRUTH), PC.U_MAX)
+    lo, hi = inv.reachable_range_m
+    proc = PC.start_controller(ns, "sensor_timeout_s:=5.0", "diagnostics_rate_hz:=10.0")
+    node = Node("plant_worker", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    try:
+        plant = PC.Plant(node, ns, inv.static_voltage(lo + 60e-6))
+        set_pub = node.create_publisher(Float64, f"{ns}/displacement_setpoint", COMMAND_QOS)
+        diags = []
+        node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        assert spin_until(ex, lambda: plant.pub.get_subscription_count() > 0, timeout_s=30.0), PC.H.stderr_of(proc)
+        assert spin_until(ex, lambda: plant.sample(ex, spin_until, timeout_s=0.2), timeout_s=20.0)
+        targets = [lo + f * (hi - lo) for f in (0.35, 0.65, 0.45, 0.75, 0.3, 0.6)]
+        k = 0
+
+        def run_until(done, max_samples):
+            nonlocal k
+            for _ in range(max_samples):
+                if k % 700 == 0:
+                    set_pub.publish(Float64(data=targets[(k // 700) % len(targets)]))
+                assert plant.sample(ex, spin_until), f"no command for sample {k}"   # every sample answered
+                k += 1
+                if k % 100 == 0 and _health(diags, "membrane health") and done():
+                    return True
+            return False
+
+        assert run_until(lambda: _worker(diags)[2] >= 1, 8000)       # a first plan from the worker
+        pid, starts, plans, _ = _worker(diags)
+        os.kill(pid, signal.SIGKILL)
+        # the loop carries on; the next retune is served by a new worker (a retune in flight is dropped)
+        assert run_until(lambda: _worker(diags)[0] != pid and _worker(diags)[2] > plans, 12000), _worker(diags)
+        new_pid, new_starts, _, failures = _worker(diags)
+        assert new_starts == starts + 1 and failures <= 1
+        while k % 700 != 650:                                       # let the last move settle: still controlling
+            run_until(lambda: False, 1)
+        d_end = np.array([h[1] for h in plant.history[-100:]])
+        assert abs(d_end.mean() - targets[(k // 700) % len(targets)]) < 2e-6
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        deadline = time.monotonic() + 30.0
+        while time.monotonic() < deadline and not _gone(new_pid):
+            time.sleep(0.1)
+        assert _gone(new_pid)
     finally:
         PC.stop(proc)
         ex.shutdown()

@@ -285,6 +285,17 @@ def test_bad_params_file_or_limit_fails_configure(ros_context, tmp_path):
     node.trigger_configure()
     assert node.ctl is None        # above the membrane limit: refused, as the amplifier does
     node.destroy_node()
+    node = PositionControllerNode(context=ros_context, parameter_overrides=[
+        Parameter("params_file", value="A2"), Parameter("retune_worker", value="gpu")])
+    node.trigger_configure()
+    assert node.ctl is None and node.health is None   # where retunes are prepared: process, thread or off
+    node.destroy_node()
+    node = PositionControllerNode(context=ros_context, parameter_overrides=[
+        Parameter("params_file", value="A2"), Parameter("retune_worker", value="thread")])
+    node.trigger_configure()
+    assert node.health.retune.worker is None and node.health.retune.mode == "thread"
+    node.trigger_cleanup()
+    node.destroy_node()
 
 
 def test_config_file_matches_the_declared_parameters():
