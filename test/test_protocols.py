@@ -7,7 +7,7 @@ from dea_ros.identify.protocols import Protocol, ProtocolError, load_protocol
 
 
 def test_shipped_protocols_load():
-    for name in ("paper", "quick", "test"):
+    for name in ("paper", "quick", "test", "quick_adaptive"):
         p = load_protocol(name)
         segs = p.schedule()
         assert segs[0].start_s == 0.0

@@ -61,14 +61,18 @@ class ProtocolProgress:
 
     def __init__(self):
         self.t_wall0: float | None = None
+        self.pass_number = 1
 
     def text(self, status: dict) -> str | None:
         elapsed, total = status.get("elapsed_s"), status.get("duration_s") or 0.0
+        if status.get("state") == "planning":
+            return "protocol: pass 1 done; 0 V while the first fit runs and plans the second pass"
         if status.get("state") != "running" or elapsed is None:
             return f"protocol: {status.get('state', '?')}"
         now = time.monotonic()
-        if self.t_wall0 is None or elapsed <= 0.0:
+        if self.t_wall0 is None or elapsed <= 0.0 or status.get("pass", 1) != self.pass_number:
             self.t_wall0 = now - 1e-9
+            self.pass_number = status.get("pass", 1)
         wall = now - self.t_wall0
         speed = elapsed / wall if wall > 0.5 else float("nan")
         eta = (total - elapsed) / speed if speed and speed == speed and speed > 0 else float("nan")
@@ -79,7 +83,8 @@ class ProtocolProgress:
                 break
         speed_text = f"x{speed:.2f} real time" if speed == speed else "x? real time"
         eta_text = _fmt_s(eta) if eta == eta else "?"
-        return (f"protocol: segment {status.get('segment')}/{status.get('segments')} {what}, simulated "
+        planned = " (pass 2, planned)" if self.pass_number == 2 else ""
+        return (f"protocol{planned}: segment {status.get('segment')}/{status.get('segments')} {what}, simulated "
                 f"{elapsed:.1f}/{total:.1f} s, {speed_text}, ETA {eta_text}")
 
 

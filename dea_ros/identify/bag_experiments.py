@@ -148,26 +148,65 @@ def read_signals(path, topics: BagTopics = BagTopics()) -> BagSignals:
     return BagSignals(out["voltage"][0], out["voltage"][1], out["displacement"][0], out["displacement"][1], meta)
 
 
-def _schedule(signals: BagSignals, segments_file, path):
-    """(information, t0 in s since the epoch, segments) from the segments YAML or the identifier's record."""
-    if segments_file is not None:
-        data = yaml.safe_load(Path(segments_file).read_text())
-        if not isinstance(data, dict) or "segments" not in data or "t0_s" not in data:
-            raise BagError(f"{segments_file}: needs 't0_s' and 'segments' (see dea_ros.identify.bag_experiments)")
-        return data, float(data["t0_s"]), list(data["segments"])
-    record = signals.metadata.get(EXPERIMENT_METADATA)
-    if record is None:
+def pass_metadata_name(number: int) -> str:
+    """The metadata record of experiment pass ``number`` (1: :data:`EXPERIMENT_METADATA`, then ``.pass2`` ...)."""
+    return EXPERIMENT_METADATA if number == 1 else f"{EXPERIMENT_METADATA}.pass{number}"
+
+
+def experiment_record(protocol, segments, t0_ns: int, completed: int, aborted: bool, command_rate_hz: float,
+                      membrane: str, number: int = 1, extra: dict | None = None) -> dict:
+    """The metadata record of one pass as identifier_node writes it (strings; the schedule as JSON)."""
+    return {
+        "protocol": protocol.name, "protocol_source": str(protocol.source), "membrane": membrane,
+        "mass_kg": repr(protocol.mass_kg), "t0_ns": str(t0_ns),
+        "segments_json": json.dumps([s.to_dict() for s in segments]), "segments_completed": str(completed),
+        "aborted": "true" if aborted else "false", "command_rate_hz": repr(command_rate_hz),
+        "pass": str(number), "adaptive": "true" if protocol.adaptive else "false", **(extra or {}),
+    }
+
+
+def _pass_number(name: str) -> int | None:
+    if name == EXPERIMENT_METADATA:
+        return 1
+    prefix = f"{EXPERIMENT_METADATA}.pass"
+    if name.startswith(prefix) and name[len(prefix):].isdigit():
+        return int(name[len(prefix):])
+    return None
+
+
+def experiment_passes(metadata: dict, path) -> list:
+    """[(information, t0 in s since the epoch, segments)] of every pass recorded, in pass order: pass 1 is
+    :data:`EXPERIMENT_METADATA`, an adaptive second pass ``dea_ros.experiment.pass2`` (each with its own t0;
+    a pass aborted keeps its completed segments only)."""
+    numbered = sorted((n, name) for name in metadata for n in [_pass_number(name)] if n is not None)
+    if not numbered or numbered[0][0] != 1:
         raise BagError(
             f"{path}: no '{EXPERIMENT_METADATA}' metadata (not recorded by identifier_node); "
             "describe the experiments with a segments YAML (--segments FILE)"
         )
-    try:
-        segments = json.loads(record["segments_json"])
-        t0 = int(record["t0_ns"]) * 1e-9
-    except (KeyError, ValueError) as exc:
-        raise BagError(f"{path}: metadata '{EXPERIMENT_METADATA}' is malformed ({exc})") from None
-    info = {k: v for k, v in record.items() if k not in ("segments_json",)}
-    return info, t0, segments
+    passes = []
+    for _n, name in numbered:
+        record = metadata[name]
+        try:
+            segments = json.loads(record["segments_json"])
+            t0 = int(record["t0_ns"]) * 1e-9
+        except (KeyError, ValueError) as exc:
+            raise BagError(f"{path}: metadata '{name}' is malformed ({exc})") from None
+        if str(record.get("aborted", "false")).lower() == "true":
+            segments = segments[:int(record.get("segments_completed", len(segments)))]
+        passes.append(({k: v for k, v in record.items() if k != "segments_json"}, t0, segments))
+    return passes
+
+
+def _schedule(signals: BagSignals, segments_file, path) -> list:
+    """[(information, t0 in s since the epoch, segments)] per pass, from the segments YAML (one pass) or the
+    identifier's records."""
+    if segments_file is not None:
+        data = yaml.safe_load(Path(segments_file).read_text())
+        if not isinstance(data, dict) or "segments" not in data or "t0_s" not in data:
+            raise BagError(f"{segments_file}: needs 't0_s' and 'segments' (see dea_ros.identify.bag_experiments)")
+        return [(data, float(data["t0_s"]), list(data["segments"]))]
+    return experiment_passes(signals.metadata, path)
 
 
 # --------------------------------------------------------------------------- segments
@@ -226,12 +265,12 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
         cut.rest_n = t.size
 
 
-def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
+def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path, label: str = "") -> None:
     f = float(seg["frequency_Hz"])
     t, d = line.window(seg["measure_start_s"], seg["measure_end_s"])
     if t.size < 20:
         raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
-    s = SineSeries(f, t - t[0], line.voltage_at(t), d, source=f"{path} sine {f:g} Hz", voltage_hold="zoh")
+    s = SineSeries(f, t - t[0], line.voltage_at(t), d, source=f"{path}{label} sine {f:g} Hz", voltage_hold="zoh")
     # the applied voltage is the amplifier's recorded output, each value held from its stamp
     # until the next: its own time line (not the laser's) carries the hold exactly
     inside = (line.tv > t[0]) & (line.tv < t[-1])
@@ -240,9 +279,9 @@ def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
     cut.sines.append((s, float(seg["amplitude_V"]), float(seg.get("offset_V", 0.0)), held_t, held_u))
 
 
-def _cut_segments(line: _Timeline, segments: list, mass: float, path) -> _Cut:
-    """Every segment of the schedule cut out of the signals (rest segments are skipped)."""
-    cut = _Cut()
+def _cut_segments(cut: _Cut, line: _Timeline, segments: list, mass: float, path, label: str = "") -> None:
+    """Every segment of one pass's schedule cut out of the signals into ``cut`` (rest segments are skipped;
+    ``label`` names the pass in the records' sources)."""
     for k, seg in enumerate(segments):
         kind = seg.get("kind")
         if kind == "static":
@@ -251,22 +290,18 @@ def _cut_segments(line: _Timeline, segments: list, mass: float, path) -> _Cut:
             t, d = line.window(seg["start_s"], seg["end_s"])
             if t.size < 20:
                 raise BagError(f"{path}: step segment {k} has {t.size} samples")
-            cut.steps.append(StepData(t - t[0], line.voltage_at(t), d, mass, source=f"{path} step segment {k}"))
+            cut.steps.append(StepData(t - t[0], line.voltage_at(t), d, mass, source=f"{path}{label} step segment {k}"))
         elif kind == "sine":
-            _cut_sine(cut, line, seg, k, path)
+            _cut_sine(cut, line, seg, k, path, label)
         elif kind == "rest":
             continue
         else:
             raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
-    if cut.rest_d0 is None:  # the rest position before the first command
-        td, dd = line.td, line.dd
-        cut.rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
-    return cut
 
 
-def _sine_data(cut: _Cut, noise: float | None, mass: float, path, measured_inputs: bool) -> SineData:
-    """The frequency response of the sine windows (eq. 21, module docstring)."""
-    series = cut.sines
+def _sine_data(cut: _Cut, series: list, noise: float | None, mass: float, source: str,
+               measured_inputs: bool) -> SineData:
+    """The frequency response of sine windows of one waveform (eq. 21, module docstring)."""
     freqs = np.array([s[0].frequency_Hz for s in series])
     amps = np.array([s[1] for s in series])
     # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
@@ -290,7 +325,7 @@ def _sine_data(cut: _Cut, noise: float | None, mass: float, path, measured_input
     # without offset the identifier applies |U sin| (a unipolar amplifier; protocols._sine)
     unipolar = all(o == 0.0 and np.min(s.voltage_V) >= 0.0 for s, _a, o, _t, _u in series)
     return SineData(freqs, amps, rms, mass, d0_m=np.full(freqs.size, cut.rest_d0),
-                    series=tuple(s[0] for s in series), source=f"{path} sine segments", inputs=inputs,
+                    series=tuple(s[0] for s in series), source=source, inputs=inputs,
                     d_rms_std_m=std, waveform="abs_sine" if unipolar else "sine")
 
 
@@ -302,23 +337,29 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
     periodic input (:meth:`SineSeries.measured_input`), used by the fit instead of the nominal sine.
     """
     signals = read_signals(path, topics)
-    info, t0, segments = _schedule(signals, segments_file, path)
-    if str(info.get("aborted", "false")).lower() == "true":
-        completed = int(info.get("segments_completed", len(segments)))
-        segments = segments[:completed]
+    passes = _schedule(signals, segments_file, path)
+    info = passes[0][0]
     membrane_ref = membrane or info.get("membrane", "A2")
     base = load_parameters(membrane_ref)
     mass = float(info.get("mass_kg", base.mass_kg))
     if signals.displacement_t_s.size < 10:
         raise BagError(f"{path}: only {signals.displacement_t_s.size} displacement samples")
-    line = _Timeline(signals, t0, float(info.get("command_rate_hz", 500.0)))
-    cut = _cut_segments(line, segments, mass, path)
+    cut = _Cut()
+    for n, (info_n, t0_n, segments_n) in enumerate(passes, 1):   # every pass on its own time line
+        line = _Timeline(signals, t0_n, float(info_n.get("command_rate_hz", 500.0)))
+        _cut_segments(cut, line, segments_n, mass, path, f" pass {n}" if n > 1 else "")
+        if n == 1 and cut.rest_d0 is None:  # the rest position before the first command
+            td, dd = line.td, line.dd
+            cut.rest_d0 = float(np.mean(dd[td < min(0.5, td[-1])])) if np.any(td < 0.5) else float(dd[0])
     # the laser noise, from the static segments (third differences at a constant voltage)
     noise = float(np.sqrt(np.mean(np.square(cut.static_noise)))) if cut.static_noise else None
     noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
     static = [StaticData(np.full(len(cut.static_u), mass), np.array(cut.static_u), np.array(cut.static_d),
                          source=f"{path} static segments")] if cut.static_u else []
-    sines = [_sine_data(cut, noise, mass, path, measured_inputs)] if cut.sines else []
+    # one SineData per waveform: |U sin| (no offset) and offset + U sin (a planned second pass may add it)
+    groups = [[s for s in cut.sines if s[2] == 0.0], [s for s in cut.sines if s[2] != 0.0]]
+    sources = [f"{path} sine segments", f"{path} offset sine segments" if groups[0] else f"{path} sine segments"]
+    sines = [_sine_data(cut, g, noise, mass, src, measured_inputs) for g, src in zip(groups, sources) if g]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:
         return ExperimentSet(

@@ -10,12 +10,13 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from .adaptive import adaptive_headline, adaptive_markdown, adaptive_summary
 from .bag_experiments import BagTopics, experiments_from_bag
 from .pipeline import identify
 from .report import write_report
 from .result import IdentificationResult
 
-__all__ = ["identify_bag", "is_bag"]
+__all__ = ["identify_bag", "fit_bag", "is_bag"]
 
 
 def is_bag(path) -> bool:
@@ -50,13 +51,12 @@ def _headline(result: IdentificationResult) -> list:
     return headline
 
 
-def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = BagTopics(),
-                 segments_file=None, progress: Callable[[str], None] | None = None, plots: bool = True,
-                 events: Callable[[dict], None] | None = None, **identify_options) -> dict:
-    """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict.
-
-    ``progress``: called with log lines; ``events``: called with every event dict of the fits (``stage``,
-    ``evaluation``, ...) and ``{"stage": "extract"}``, ``{"stage": "report"}`` before those steps."""
+def fit_bag(bag, membrane: str | None = None, topics: BagTopics = BagTopics(), segments_file=None,
+            progress: Callable[[str], None] | None = None, events: Callable[[dict], None] | None = None,
+            **identify_options) -> tuple:
+    """Bag -> experiments -> fit (every pass the bag records, :func:`~.bag_experiments.experiments_from_bag`):
+    (result, timings in s). ``progress``/``events`` as :func:`identify_bag`. The bag may be open and
+    still recorded (the adaptive first fit): its complete prefix is read."""
     say = progress or (lambda _msg: None)
     tell = events or (lambda _event: None)
     t0 = time.perf_counter()
@@ -83,11 +83,28 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
     t1 = time.perf_counter()
     result = identify(experiments, progress=fit_progress, **identify_options)
     result.warnings = notes + list(result.warnings)
-    t_fit = time.perf_counter() - t1
+    return result, {"extract": t_extract, "fit": time.perf_counter() - t1}
+
+
+def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = BagTopics(),
+                 segments_file=None, progress: Callable[[str], None] | None = None, plots: bool = True,
+                 events: Callable[[dict], None] | None = None, **identify_options) -> dict:
+    """Identify from a bag; write ``out_dir/params.yaml`` and ``out_dir/report/``. Returns a summary dict.
+
+    ``progress``: called with log lines; ``events``: called with every event dict of the fits (``stage``,
+    ``evaluation``, ...) and ``{"stage": "extract"}``, ``{"stage": "report"}`` before those steps.
+    A bag with an adaptive second pass (:mod:`~dea_ros.identify.adaptive`) is fitted from both passes;
+    the report and the summary's ``adaptive`` say so (the plan, expected and realised widths)."""
+    tell = events or (lambda _event: None)
+    result, timings = fit_bag(bag, membrane, topics, segments_file, progress, events, **identify_options)
     out = Path(out_dir)
     report_dir = out / "report"
     tell({"stage": "report"})
     paths = write_report(result, report_dir, plots=plots)
+    adaptive = None if segments_file is not None else adaptive_summary(bag, result)
+    if adaptive is not None:
+        with open(paths["report"], "a") as f:
+            f.write("\n" + adaptive_markdown(adaptive))
     params_file = out / "params.yaml"
     params_file.write_text(Path(paths["params"]).read_text())
     p = result.parameters
@@ -101,6 +118,7 @@ def identify_bag(bag, out_dir, membrane: str | None = None, topics: BagTopics = 
         "identification": result.to_dict().get("identification"),
         "uncertainty": [b.to_dict() for b in result.uncertainty],
         "warnings": list(result.warnings),
-        "timings_s": {"extract": t_extract, "fit": t_fit, "report": paths.get("report_s", 0.0)},
-        "headline": _headline(result),
+        "timings_s": {**timings, "report": paths.get("report_s", 0.0)},
+        "headline": _headline(result) + (adaptive_headline(adaptive) if adaptive else []),
+        **({"adaptive": adaptive.to_dict()} if adaptive is not None else {}),
     }

@@ -48,7 +48,7 @@ from .joint_fit import JointObjective
 from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
-           "first_fit_from_result", "candidate_records", "candidate_information", "plan_experiments",
+           "first_fit_from_result", "fit_widths", "candidate_records", "candidate_information", "plan_experiments",
            "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS",
            "WIDTH_CAP", "T95"]
 
@@ -149,6 +149,7 @@ class PlanLimits:
     measure_s: float = 3.0                           # sine: measured (whole periods)
     step_pre_s: float = 0.5
     step_hold_s: float = 5.0
+    step_rest_min_s: float = 2.0                     # rest at 0 V before a step, at least (step_rest_s)
     static_hold_s: float = 4.0
     static_measure_s: float = 1.0
     sample_rate_Hz: float = 1000.0
@@ -156,7 +157,7 @@ class PlanLimits:
 
     def __post_init__(self):
         for name in ("max_voltage_V", "slew_rate_V_per_s", "min_frequency_Hz", "max_frequency_Hz", "settle_s",
-                     "measure_s", "step_pre_s", "step_hold_s", "static_hold_s", "static_measure_s",
+                     "measure_s", "step_pre_s", "step_hold_s", "step_rest_min_s", "static_hold_s", "static_measure_s",
                      "sample_rate_Hz"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -268,10 +269,11 @@ def _frequency_grid(params: MembraneParameters, limits: PlanLimits) -> np.ndarra
     return np.array(sorted({round(float(f), 3) for f in grid}))
 
 
-def step_rest_s(params: MembraneParameters) -> float:
+def step_rest_s(params: MembraneParameters, min_s: float = 2.0) -> float:
     """Rest at 0 V before a step so it starts from rest as the step fit assumes: five creep times
-    eta1/k1, at least 2 s, at most 60 s (a step costs it too)."""
-    return float(min(max(5.0 * params.eta1_Pa_s / params.k1_Pa, 2.0), 60.0))
+    eta1/k1, at least ``min_s`` (the ringing of the mass decays too: :attr:`PlanLimits.step_rest_min_s`),
+    at most 60 s or ``min_s`` (a step costs it too)."""
+    return float(min(max(5.0 * params.eta1_Pa_s / params.k1_Pa, min_s), max(60.0, min_s)))
 
 
 def candidate_records(params: MembraneParameters, limits: PlanLimits | None = None) -> list:
@@ -290,7 +292,7 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
                 continue
             out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
                                        measured_samples=n))
-    rest = step_rest_s(params)
+    rest = step_rest_s(params, limits.step_rest_min_s)
     for a in limits.step_fractions:
         out.append(CandidateRecord("step", rest + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
                                    final_V=float(a * umax)))
@@ -376,6 +378,14 @@ def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
             den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
             out[label] = float(cov[i, j] / den) if den > 0 else float("nan")
     return out
+
+
+def fit_widths(first: FirstFit) -> tuple:
+    """(relative 95 % half-widths, pair correlations) of a fit from its own Fisher information (the planner's
+    "before"; of a two-pass fit: the realised widths, comparable with a plan's expected ones)."""
+    scale = first.scale()
+    info = first.information * np.outer(scale, scale)
+    return dict(zip(first.names, map(float, _widths(first, info)))), _correlations(first, info)
 
 
 def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits | None = None,

@@ -48,7 +48,7 @@ from ..errors import ProtocolError
 from ..model.parameters import config_dir
 from ..model.yaml_files import read_yaml_mapping
 
-__all__ = ["Protocol", "Segment", "ProtocolError", "load_protocol", "protocol_path"]
+__all__ = ["Protocol", "Segment", "ProtocolError", "load_protocol", "protocol_path", "segment_at", "commands_ahead"]
 
 
 @dataclass(frozen=True)
@@ -229,6 +229,26 @@ class Protocol:
     def duration_s(self) -> float:
         segs = self.schedule()
         return segs[-1].end_s if segs else 0.0
+
+
+def segment_at(segments, t: float, start: int = 0) -> int:
+    """The index of the segment that holds protocol time ``t`` (s), searching from ``start``;
+    ``len(segments)`` past the end."""
+    k = start
+    while k < len(segments) and t >= segments[k].end_s:
+        k += 1
+    return k
+
+
+def commands_ahead(segments, k: int, t: float, period_s: float, n: int) -> list:
+    """The commands (V) of the ticks at t, t + period, ... (n of them), each for the update one period
+    later (identifier_node's command timing): from segment ``k`` on, 0 V past the end."""
+    out = []
+    for i in range(n):
+        tick_t = t + i * period_s
+        k = segment_at(segments, tick_t, k)
+        out.append(float(segments[k].voltage_at(tick_t + period_s)) if k < len(segments) else 0.0)
+    return out
 
 
 def _const(v):

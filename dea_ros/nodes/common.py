@@ -38,11 +38,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from sensor_msgs.msg import BatteryState, Range
 
+from ..bag import QosProfile, qos_from_dict
+
 __all__ = [
     "TOPIC_VOLTAGE_CMD", "TOPIC_VOLTAGE_CMD_BATCH", "TOPIC_VOLTAGE", "TOPIC_DISPLACEMENT",
     "TOPIC_DISPLACEMENT_IMPLAUSIBLE", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
     "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
+    "qos_to_bag",
 ]
 
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
@@ -170,3 +173,24 @@ def publish_diagnostic(node: Node, publisher, name: str, hardware_id: str, level
     arr.header.stamp = node.get_clock().now().to_msg()
     arr.status = [status]
     publisher.publish(arr)
+
+
+def qos_to_bag(profile) -> QosProfile:
+    """An rclpy QoSProfile (e.g. a discovered publisher's offered QoS) as rosbag2 stores it.
+
+    Every field is kept (rmw enum values; durations as {sec, nsec}: rmw's infinite duration
+    stays 9223372036 s 854775807 ns). Discovery reports history ``unknown`` and depth 0, as
+    ``ros2 bag record`` then records too.
+    """
+    def duration(value) -> dict:
+        sec, nsec = divmod(int(value.nanoseconds), 1_000_000_000)
+        return {"sec": sec, "nsec": nsec}
+
+    return qos_from_dict({
+        "history": int(profile.history), "depth": int(profile.depth),
+        "reliability": int(profile.reliability), "durability": int(profile.durability),
+        "deadline": duration(profile.deadline), "lifespan": duration(profile.lifespan),
+        "liveliness": int(profile.liveliness),
+        "liveliness_lease_duration": duration(profile.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(profile.avoid_ros_namespace_conventions),
+    })

@@ -13,6 +13,10 @@
    publisher). ``rosbag2_format``: ``auto`` (= ``humble``, read by every distro), ``humble`` or ``jazzy``.
 4. At the end: 0 V, bag closed, then in a background thread the offline identification
    (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
+   A protocol with ``adaptive: true`` first runs a second pass (:mod:`dea_ros.identify.adaptive`): at the
+   end of its segments 0 V (state ``planning``, every tick 0 V) while a thread fits the bag recorded so
+   far and plans; the planned segments then run from the clock of the tick the plan is ready at (same
+   bag, metadata ``dea_ros.experiment.pass2``); the identification uses both passes.
 
 Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. Every tick ends with a
 ``~/tick_done`` (std_msgs/Header, stamp = the tick's time): in simulated time the mock rig waits
@@ -55,12 +59,12 @@ from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from ..bag import (BagError, BagWriter, QosProfile, check_writable, qos_from_dict, recover_bag,
-                   resolve_rosbag2_format)
+from ..bag import BagError, BagWriter, check_writable, recover_bag, resolve_rosbag2_format
 from ..bag.message_codec import header_stamp_ns
-from ..identify.bag_experiments import EXPERIMENT_METADATA
-from ..identify.from_bag import identify_bag
-from ..identify.protocols import ProtocolError, load_protocol
+from ..identify.adaptive import plan_second_pass
+from ..identify.bag_experiments import experiment_record, pass_metadata_name
+from ..identify.from_bag import fit_bag, identify_bag
+from ..identify.protocols import ProtocolError, commands_ahead, load_protocol, segment_at
 from .common import (
     COMMAND_QOS,
     LATCHED_QOS,
@@ -74,10 +78,11 @@ from .common import (
     declare_float,
     declare_int,
     declare_str,
+    qos_to_bag,
 )
 from .runner import run_nodes
 
-__all__ = ["IdentifierNode", "main", "qos_to_bag"]
+__all__ = ["IdentifierNode", "main"]
 
 #: ``command_trigger: applied_voltage``: wall-clock s without a triggering amplifier output, while running,
 #: after which the node commands from its clock again (below amplifier_node's 2 s clock-stall backstop).
@@ -90,27 +95,6 @@ RECORDED = (
     (TOPIC_DISPLACEMENT, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
     (TOPIC_DISPLACEMENT_PREDICTED, "sensor_msgs/msg/Range", Range, SENSOR_QOS),
 )
-
-
-def qos_to_bag(profile) -> QosProfile:
-    """An rclpy QoSProfile (e.g. a discovered publisher's offered QoS) as rosbag2 stores it.
-
-    Every field is kept (rmw enum values; durations as {sec, nsec}: rmw's infinite duration
-    stays 9223372036 s 854775807 ns). Discovery reports history ``unknown`` and depth 0, as
-    ``ros2 bag record`` then records too.
-    """
-    def duration(value) -> dict:
-        sec, nsec = divmod(int(value.nanoseconds), 1_000_000_000)
-        return {"sec": sec, "nsec": nsec}
-
-    return qos_from_dict({
-        "history": int(profile.history), "depth": int(profile.depth),
-        "reliability": int(profile.reliability), "durability": int(profile.durability),
-        "deadline": duration(profile.deadline), "lifespan": duration(profile.lifespan),
-        "liveliness": int(profile.liveliness),
-        "liveliness_lease_duration": duration(profile.liveliness_lease_duration),
-        "avoid_ros_namespace_conventions": bool(profile.avoid_ros_namespace_conventions),
-    })
 
 
 class IdentifierNode(Node):
@@ -145,7 +129,8 @@ class IdentifierNode(Node):
         self.protocol_ref = declare_str(self, "protocol", "paper", "protocol name in config/protocols or a YAML path")
         self.output_dir = Path(declare_str(self, "output_dir", "runs", "folder of the runs"))
         run_name = declare_str(self, "run_name", "", "name of this run (default: date and time)")
-        self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends")
+        self.identify = declare_bool(self, "identify", True, "fit the parameters when the protocol ends (an adaptive "
+                                     "protocol plans its second pass from a first fit regardless)")
         self.exit_when_done = declare_bool(self, "exit_when_done", False, "stop the node when done (demo)")
         self.command_rate_hz = declare_float(self, "command_rate_hz", 500.0, "voltage_cmd rate, Hz", 10.0, 5000.0)
         self.period_ns = int(round(1e9 / self.command_rate_hz))  # one command period (update), ns
@@ -199,6 +184,9 @@ class IdentifierNode(Node):
         self.outputs_behind_clock = 0  # applied-voltage outputs older than the clock (recorded, no command)
         self.last_trigger_wall_s = time.monotonic()  # time.monotonic() of the last output that triggered a tick
         self.restarts = 0  # ticks from the clock after TRIGGER_SILENCE_S without a triggering output
+        self.pass_number = 1  # adaptive protocol: 2 once the planned second pass started
+        self.second_pass = None  # its SecondPass (the plan)
+        self.plan_outcome = None  # set by the first fit's thread: (SecondPass, segments) or why there is none
 
     def _load_protocol(self) -> None:
         """The protocol and its schedule (checked against ``max_voltage_V``), the bag format: SystemExit naming
@@ -324,21 +312,15 @@ class IdentifierNode(Node):
             self.rig_seen["displacement"] = True
 
     def experiment_metadata(self, completed: int, aborted: bool) -> dict:
-        return {
-            "protocol": self.protocol.name,
-            "protocol_source": str(self.protocol.source),
-            "membrane": self.membrane_override or self.protocol.membrane,
-            "mass_kg": repr(self.protocol.mass_kg),
-            "t0_ns": str(self.t0_ns),
-            "segments_json": json.dumps([s.to_dict() for s in self.segments]),
-            "segments_completed": str(completed),
-            "aborted": "true" if aborted else "false",
-            "command_rate_hz": repr(self.command_rate_hz),
-            **({"error": self.recording_error} if self.recording_error else {}),
-        }
+        extra = self.second_pass.record_extra() if self.pass_number == 2 else {}
+        if self.recording_error:
+            extra["error"] = self.recording_error
+        protocol = self.second_pass.protocol if self.pass_number == 2 else self.protocol
+        return experiment_record(protocol, self.segments, self.t0_ns, completed, aborted, self.command_rate_hz,
+                                 self.membrane_override or self.protocol.membrane, self.pass_number, extra)
 
     def record_experiment_metadata(self, completed: int, aborted: bool) -> None:
-        self.bag.add_metadata(EXPERIMENT_METADATA, self.experiment_metadata(completed, aborted))
+        self.bag.add_metadata(pass_metadata_name(self.pass_number), self.experiment_metadata(completed, aborted))
 
     @property
     def finished(self) -> bool:
@@ -401,9 +383,10 @@ class IdentifierNode(Node):
             return
         if self.state in ("starting", "waiting"):
             self.on_tick()
-        elif self.state == "running" and time.monotonic() - self.last_trigger_wall_s > TRIGGER_SILENCE_S:
+        elif self.state in ("running", "planning") and time.monotonic() - self.last_trigger_wall_s > \
+                TRIGGER_SILENCE_S:
             self.restarts += 1
-            self.get_logger().warning(f"no amplifier output for {TRIGGER_SILENCE_S:g} s (wall) while running: "
+            self.get_logger().warning(f"no amplifier output for {TRIGGER_SILENCE_S:g} s (wall) while {self.state}: "
                                       f"commanding from the current clock again (restart {self.restarts})")
             self.batch_end_ns = None
             self.last_trigger_wall_s = time.monotonic()
@@ -436,16 +419,20 @@ class IdentifierNode(Node):
                 self.fail(f"rig not ready after {self.wait_for_rig_s:g} s (missing: {missing}); is the amplifier "
                           "active and the sensor publishing? nothing was commanded")
             return
+        if self.state == "planning" and not self.on_planning_tick(now_ns):
+            return
         if self.state != "running":
             return
         t = (now_ns - self.t0_ns) * 1e-9
-        k = self.segment_index if self.segment_index >= 0 else 0
-        while k < len(self.segments) and t >= self.segments[k].end_s:
-            k += 1
+        k = segment_at(self.segments, t, max(self.segment_index, 0))
         if k >= len(self.segments):
             self.cmd_pub.publish(Float64(data=0.0))
             self.segment_index = len(self.segments)
-            self.get_logger().info("protocol complete")
+            self.get_logger().info(f"protocol complete (pass {self.pass_number})")
+            if self.pass_number == 1 and self.protocol.adaptive:  # (identify: false: the final fit is left out)
+                self.end_first_pass()
+                self.publish_ack(now_ns)
+                return
             self.finish_recording(aborted=False)
             if self.state != "error":  # not after a recording fault
                 self.start_identification()
@@ -467,6 +454,56 @@ class IdentifierNode(Node):
         self.send_commands(k, t, now_ns)
         self.publish_ack(now_ns)
 
+    def end_first_pass(self) -> None:
+        """Adaptive protocol, pass 1 done: its record completed and flushed, then the first fit and the plan
+        in a thread (:mod:`dea_ros.identify.adaptive`) while the ticks command 0 V."""
+        try:
+            self.record_experiment_metadata(len(self.segments), aborted=False)
+            self.bag.flush()
+        except BagError as exc:
+            self.recording_failed(exc)
+            return
+        self.state = "planning"
+        threading.Thread(target=self.run_first_fit, daemon=True).start()
+
+    def run_first_fit(self) -> None:
+        """The first fit from the bag recorded so far and the second pass planned from it (thread)."""
+        try:
+            result, _timings = fit_bag(self.bag_dir, membrane=self.membrane_override or None,
+                                       progress=lambda msg: self.get_logger().info(f"first fit: {msg}"))
+            second = plan_second_pass(result, self.protocol, self.max_voltage_V or None)
+            self.plan_outcome = (second, second.segments(self.max_voltage_V or None))
+        except Exception as exc:  # noqa: BLE001 - report; the first pass is identified alone
+            self.get_logger().error(traceback.format_exc())
+            self.plan_outcome = f"no second pass: {exc}"
+
+    def on_planning_tick(self, now_ns: int) -> bool:
+        """0 V while the first fit runs (the tick acknowledged: the clock runs on, the membrane rests); True
+        once the planned second pass starts at this tick, from the current clock."""
+        outcome = self.plan_outcome
+        if outcome is None:
+            self.cmd_pub.publish(Float64(data=0.0))
+            self.publish_ack(now_ns)
+            return False
+        if isinstance(outcome, str):  # no plan: the bag holds one pass, identified as such
+            self.get_logger().warning(f"{outcome}; identifying from the first pass")
+            self.summary["adaptive"] = {"passes": 1, "note": outcome}
+            self.finish_recording(aborted=False)
+            if self.state != "error":
+                self.start_identification()
+            return False
+        self.second_pass, self.segments = outcome
+        self.pass_number, self.segment_index, self.batch_end_ns, self.t0_ns = 2, -1, None, now_ns
+        self.state = "running"
+        picks = "; ".join(p.record.label() for p in self.second_pass.plan.picks)
+        self.get_logger().info(f"second pass planned ({self.segments[-1].end_s:.1f} s): {picks}")
+        try:
+            self.record_experiment_metadata(0, aborted=False)
+        except BagError as exc:
+            self.recording_failed(exc)
+            return False
+        return True
+
     def send_commands(self, k: int, t: float, now_ns: int) -> None:
         """The command for the next update (segment ``k``, protocol time ``t``, s), or with ``command_batch``
         K > 1, once the last batch is used up, the commands of the next K updates as one batch."""
@@ -479,11 +516,7 @@ class IdentifierNode(Node):
             return  # the amplifier still holds commands up to batch_end_ns
         batch = JointTrajectory(joint_names=["dea_voltage"])
         batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
-        for i in range(self.command_batch):  # the command the tick at t + i periods would send
-            tick_t = t + i * period
-            while k < len(self.segments) and tick_t >= self.segments[k].end_s:
-                k += 1
-            voltage = self.segments[k].voltage_at(tick_t + period) if k < len(self.segments) else 0.0
+        for i, voltage in enumerate(commands_ahead(self.segments, k, t, period, self.command_batch)):
             sec, nanosec = divmod(i * period_ns, 1_000_000_000)
             batch.points.append(JointTrajectoryPoint(positions=[float(voltage)],
                                                      time_from_start=Duration(sec=sec, nanosec=nanosec)))
@@ -532,7 +565,7 @@ class IdentifierNode(Node):
         """After a write error: finish the bag where it lies, with the experiment marked aborted."""
         metadata = []
         if self.t0_ns is not None:
-            metadata.append((EXPERIMENT_METADATA, self.experiment_metadata(completed, aborted=True)))
+            metadata.append((pass_metadata_name(self.pass_number), self.experiment_metadata(completed, aborted=True)))
         try:
             report = recover_bag(self.bag_dir, in_place=True, keep_original=False, extra_metadata=metadata)
         except BagError as exc:
@@ -599,7 +632,7 @@ class IdentifierNode(Node):
         return resp
 
     def abort(self, reason: str) -> bool:
-        if self.state not in ("waiting", "running", "starting"):
+        if self.state not in ("waiting", "running", "starting", "planning"):
             return False
         for _ in range(3):
             self.cmd_pub.publish(Float64(data=0.0))
@@ -615,7 +648,8 @@ class IdentifierNode(Node):
         """The run's state: segment, simulated time since the protocol started (s), its duration (s)."""
         total = self.segments[-1].end_s if self.segments else 0.0
         elapsed = (self.now_ns() - self.t0_ns) * 1e-9 if (self.t0_ns and self.state == "running") else None
-        return {"state": self.state, "segment": self.segment_index + 1, "segments": len(self.segments),
+        return {"state": self.state, "pass": self.pass_number, "segment": self.segment_index + 1,
+                "segments": len(self.segments),
                 "elapsed_s": elapsed, "duration_s": total,
                 "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
                 "bag": str(self.bag_dir), "error": self.error,

@@ -48,6 +48,10 @@ def test_protocol_line_from_the_identifier_log():
     text = view.text({**parsed, "elapsed_s": 30.0})
     assert "x3.00 real time" in text and "ETA 0:56" in text, text
     assert view.text({"state": "waiting"}) == "protocol: waiting"
+    # an adaptive protocol: the first fit at 0 V, then the planned pass with its own clock
+    assert "first fit" in view.text({"state": "planning"})
+    second = view.text({**parsed, "pass": 2, "elapsed_s": 3.0})
+    assert second.startswith("protocol (pass 2, planned): segment 12/25") and "x? real time" in second
 
 
 def test_identification_line_names_stage_evaluations_and_elapsed():
