@@ -28,13 +28,14 @@ from pathlib import Path
 import numpy as np
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from std_msgs.msg import Float64, String
+from sensor_msgs.msg import BatteryState
+from std_msgs.msg import Float64
 
 from dea_ros.cli.rig import RigProcesses, start_rig
 from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, read_signals
 from dea_ros.identify.protocols import load_protocol
 from dea_ros.model import config_dir
-from dea_ros.nodes.common import COMMAND_QOS, LATCHED_QOS
+from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS
 
 PROTOCOL = """
 protocol:
@@ -142,15 +143,19 @@ protocol:
 
 
 class ForeignCommand:
-    """Another node on the graph: once the identifier's protocol has run ``after_s`` (simulated), one 0 V
+    """Another node on the graph: once the sine is under way (an applied voltage above 1000 V), one 0 V
     ``voltage_cmd``. amplifier_node takes it (a single command supersedes a queued batch) and empties
     its queue: the identifier's batch is gone, nobody acknowledges the next tick, the rig pauses."""
 
-    def __init__(self, ctx, after_s: float = 0.5):
-        self.ctx, self.after_s = ctx, after_s
+    def __init__(self, ctx):
+        self.ctx = ctx
         self.node = self.executor = self.pub = None
-        self.status: dict = {}
-        self.sent_at_s: float | None = None
+        self.sent_at_s: float | None = None   # the stamp of the applied voltage that triggered it, s
+
+    def on_voltage(self, msg: BatteryState) -> None:
+        if self.sent_at_s is None and msg.voltage > 1000.0:
+            self.pub.publish(Float64(data=0.0))
+            self.sent_at_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
     def __call__(self, ns: str) -> None:
         if self.node is None:
@@ -158,13 +163,8 @@ class ForeignCommand:
             self.executor = SingleThreadedExecutor(context=self.ctx)
             self.executor.add_node(self.node)
             self.pub = self.node.create_publisher(Float64, f"{ns}/voltage_cmd", COMMAND_QOS)
-            self.node.create_subscription(String, f"{ns}/identifier_node/status",
-                                          lambda m: self.status.update(json.loads(m.data)), LATCHED_QOS)
-        self.executor.spin_once(timeout_sec=0.02)
-        elapsed = self.status.get("elapsed_s")
-        if self.sent_at_s is None and self.status.get("state") == "running" and elapsed and elapsed > self.after_s:
-            self.pub.publish(Float64(data=0.0))
-            self.sent_at_s = elapsed
+            self.node.create_subscription(BatteryState, f"{ns}/voltage", self.on_voltage, SENSOR_QOS)
+        self.executor.spin_once(timeout_sec=0.005)
 
 
 def test_a_batched_run_whose_batch_is_lost_restarts_from_the_clock(tmp_path, ros_context):
@@ -176,7 +176,7 @@ def test_a_batched_run_whose_batch_is_lost_restarts_from_the_clock(tmp_path, ros
     protocol.write_text(SINE_PROTOCOL)
     foreign = ForeignCommand(ros_context)
     bag = _run(tmp_path, 25, protocol, meanwhile=foreign)
-    assert foreign.sent_at_s is not None, foreign.status
+    assert foreign.sent_at_s is not None
     summary = json.loads((bag.parent / "summary.json").read_text())
     assert summary["state"] == "done" and summary["restarts"] >= 1, summary
     signals = read_signals(bag)
@@ -184,6 +184,7 @@ def test_a_batched_run_whose_batch_is_lost_restarts_from_the_clock(tmp_path, ros
     segments = load_protocol(str(protocol)).schedule(None)
     t_rel = signals.voltage_t_s - t0_s
     last = (t_rel > segments[-1].end_s - 0.5) & (t_rel < segments[-1].end_s - 1.5 / RATE)  # the last 0.5 s
+    assert foreign.sent_at_s - t0_s < segments[-1].end_s - 1.0   # (the foreign command came well before)
     assert last.sum() >= 0.5 * RATE - 3
     expected = [segments[-1].voltage_at(t) for t in t_rel[last]]
     np.testing.assert_allclose(signals.voltage_V[last], expected, rtol=0.0, atol=0.5)
