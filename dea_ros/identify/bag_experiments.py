@@ -218,10 +218,23 @@ class _Timeline:
         self.td, self.dd = signals.displacement_t_s - t0, signals.displacement_m
         self.command_lead_s = 2.0 / command_rate_hz
 
+    @property
+    def guard_s(self) -> float:
+        """Time (s) left out before a segment's end: identifier_node commands one period ahead, so
+        the next segment's voltage can appear just before the boundary."""
+        return max(0.01, self.command_lead_s)
+
     def window(self, a, b):
-        """Samples in [a, b - guard): identifier_node commands one period ahead, so the next
-        segment's voltage can appear just before the boundary."""
-        k = (self.td >= a) & (self.td < b - max(0.01, self.command_lead_s))
+        """Samples in [a, b - guard)."""
+        k = (self.td >= a) & (self.td < b - self.guard_s)
+        return self.td[k], self.dd[k]
+
+    def window_of_same_input(self, a, b, input_start_s):
+        """Samples of a window [a, b) as long as it was planned: moved earlier by the guard when the
+        same input was already applied then (from ``input_start_s`` on, a sine's settling), so a
+        record of whole periods keeps all of them; else :meth:`window`."""
+        shift = self.guard_s if a - self.guard_s >= input_start_s else 0.0
+        k = (self.td >= a - shift) & (self.td < b - self.guard_s)
         return self.td[k], self.dd[k]
 
     def voltage_at(self, t):
@@ -267,7 +280,8 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
 
 def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path, label: str = "") -> None:
     f = float(seg["frequency_Hz"])
-    t, d = line.window(seg["measure_start_s"], seg["measure_end_s"])
+    t, d = line.window_of_same_input(seg["measure_start_s"], seg["measure_end_s"],
+                                        seg.get("start_s", seg["measure_start_s"]))
     if t.size < 20:
         raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
     s = SineSeries(f, t - t[0], line.voltage_at(t), d, source=f"{path}{label} sine {f:g} Hz", voltage_hold="zoh")

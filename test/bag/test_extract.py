@@ -5,17 +5,12 @@ import numpy as np
 import pytest
 import yaml
 
-from dea_ros.bag import BagError, BagWriter, sensor_data_qos
+from dea_ros.bag import BagError, BagWriter
 from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, BagTopics, experiments_from_bag
 from dea_ros.identify.protocols import load_protocol
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.solvers import SampledVoltage, SinePeriodic, simulate, solve_native
-
-T0_NS = 1_700_000_000_000_000_000
-
-
-def stamp(t_ns):
-    return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
+from fakes.recorded_bag import T0_NS, write_rig_bag
 
 
 @pytest.fixture(scope="module")
@@ -35,23 +30,10 @@ def recorded(tmp_path_factory):
     d = resp.displacement_m + rng.normal(0, 1e-6, td.size)
     d[::97] = np.nan  # samples laser_sensor_node flagged implausible (REP 117 invalid): skipped
     path = tmp_path_factory.mktemp("bags") / "run"
-    with BagWriter(path) as bag:
-        bag.add_topic("/dea/voltage", "sensor_msgs/msg/BatteryState", sensor_data_qos(50))
-        bag.add_topic("/dea/displacement", "sensor_msgs/msg/Range", sensor_data_qos(50))
-        bag.add_metadata(EXPERIMENT_METADATA, {
-            "protocol": "test", "membrane": "A2", "mass_kg": "0.003", "t0_ns": str(T0_NS),
-            "segments_json": json.dumps([s.to_dict() for s in segs]), "aborted": "false",
-            "segments_completed": str(len(segs))})
-        events = sorted([(int(t * 1e9), "v", u) for t, u in zip(tv, uv)] +
-                        [(int(t * 1e9), "d", x) for t, x in zip(td, d)])
-        for t_ns, kind, value in events:
-            t_abs = T0_NS + t_ns
-            if kind == "v":
-                bag.write("/dea/voltage", {"header": {"stamp": stamp(t_abs), "frame_id": "amp"},
-                                           "voltage": value, "present": True}, t_abs)
-            else:
-                bag.write("/dea/displacement", {"header": {"stamp": stamp(t_abs), "frame_id": "laser"},
-                                                "radiation_type": 1, "range": value}, t_abs)
+    record = {"protocol": "test", "membrane": "A2", "mass_kg": "0.003", "t0_ns": str(T0_NS),
+              "segments_json": json.dumps([s.to_dict() for s in segs]), "aborted": "false",
+              "segments_completed": str(len(segs))}
+    write_rig_bag(path, tv, uv, td, d, [(EXPERIMENT_METADATA, record)])
     return path, segs
 
 
@@ -79,6 +61,11 @@ def test_experiments_are_cut_from_the_bag(recorded):
         static_equilibrium(a2, 0).displacement_m)
     assert sines.d_rms_m[0] == pytest.approx(rms, rel=0.03)
     assert sines.series[0].frequency_Hz == freqs[0] and d0 > 0
+    # each sine's measuring window is whole periods (13-15 here): all of them are kept, the window
+    # moved earlier by the 10 ms guard into the same sine's settling instead of losing its last period
+    for series, seg in zip(sines.series, [s for s in segs if s.kind == "sine"]):
+        planned = round((seg.measure_end_s - seg.measure_start_s) * seg.info["frequency_Hz"])
+        assert series.period_weights()[1] == planned
     assert exp.mass_kg == 0.003 and exp.geometry["thickness_m"] == a2.thickness_m
 
 

@@ -14,7 +14,7 @@ import json
 import numpy as np
 import pytest
 
-from dea_ros.bag import BagReader, BagWriter, sensor_data_qos
+from dea_ros.bag import BagReader
 from dea_ros.identify.adaptive import adaptive_markdown, adaptive_summary, limits_for_protocol, plan_second_pass
 from dea_ros.identify.bag_experiments import experiment_passes, experiment_record, experiments_from_bag, \
     pass_metadata_name
@@ -24,10 +24,13 @@ from dea_ros.identify.synth import synthesize_experiments
 from dea_ros.model import preset, static_equilibrium
 from dea_ros.solvers import SampledVoltage, simulate
 
+from fakes.recorded_bag import T0_NS, write_rig_bag
+
 from .conftest import NOISE_M, PAPER_FREQUENCIES_HZ, SOFTENING
 
-T0_NS = 1_700_000_000_000_000_000
 GAP_S = 1.3   # 0 V between the passes (the first fit)
+#: the extraction's guard at the 500 Hz command rate (bag_experiments: max(10 ms, two periods))
+GUARD_S = 0.01
 
 PASS1 = Protocol.from_dict({"name": "two_pass", "membrane": "A2", "mass_kg": 0.003, "adaptive": True,
                             "adaptive_budget_s": 10.0, "segments": [
@@ -44,10 +47,6 @@ PASS2 = Protocol.from_dict({"name": "two_pass-planned", "membrane": "A2", "mass_
     {"kind": "rest", "hold_s": 0.5}]})
 
 
-def stamp(t_ns):
-    return {"sec": t_ns // 1_000_000_000, "nanosec": t_ns % 1_000_000_000}
-
-
 def _voltage(segs1, segs2, t2_0):
     """The commanded voltage of both passes and the rest between them at time t (s from pass 1's t0)."""
     def at(t):
@@ -57,25 +56,6 @@ def _voltage(segs1, segs2, t2_0):
         k = min(int(np.searchsorted([s.end_s for s in segs], tt, side="right")), len(segs) - 1)
         return segs[k].voltage_at(tt) if tt < segs[-1].end_s else 0.0
     return at
-
-
-def _write_bag(path, tv, uv, td, d, records):
-    with BagWriter(path) as bag:
-        bag.add_topic("/dea/voltage", "sensor_msgs/msg/BatteryState", sensor_data_qos(50))
-        bag.add_topic("/dea/displacement", "sensor_msgs/msg/Range", sensor_data_qos(50))
-        for name, record in records:
-            bag.add_metadata(name, record)
-        events = sorted([(int(round(t * 1e9)), "v", u) for t, u in zip(tv, uv)] +
-                        [(int(round(t * 1e9)), "d", x) for t, x in zip(td, d)])
-        for t_ns, kind, value in events:
-            t_abs = T0_NS + t_ns
-            if kind == "v":
-                bag.write("/dea/voltage", {"header": {"stamp": stamp(t_abs), "frame_id": "amp"},
-                                           "voltage": value, "present": True}, t_abs)
-            else:
-                bag.write("/dea/displacement", {"header": {"stamp": stamp(t_abs), "frame_id": "laser"},
-                                                "radiation_type": 1, "range": value}, t_abs)
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -94,11 +74,11 @@ def two_passes(tmp_path_factory):
     extra = {"plan_json": json.dumps({"picks": [], "relative_ci95_before": {}}), "first_fit_json": "{}"}
     rec2 = experiment_record(PASS2, segs2, t2_ns, len(segs2), False, 500.0, "A2", 2, extra)
     out = tmp_path_factory.mktemp("passes")
-    full = _write_bag(out / "full", tv, uv, td, d, [(pass_metadata_name(1), rec1), (pass_metadata_name(2), rec2)])
+    full = write_rig_bag(out / "full", tv, uv, td, d, [(pass_metadata_name(1), rec1), (pass_metadata_name(2), rec2)])
     aborted = dict(rec2, aborted="true", segments_completed="2")   # pass 2 stopped in its third segment
     cut = td < t2_0 + segs2[2].start_s + 0.5
-    part = _write_bag(out / "aborted", tv[tv < td[cut][-1]], uv[tv < td[cut][-1]], td[cut], d[cut],
-                      [(pass_metadata_name(1), rec1), (pass_metadata_name(2), aborted)])
+    part = write_rig_bag(out / "aborted", tv[tv < td[cut][-1]], uv[tv < td[cut][-1]], td[cut], d[cut],
+                         [(pass_metadata_name(1), rec1), (pass_metadata_name(2), aborted)])
     return {"full": full, "aborted": part, "segs1": segs1, "segs2": segs2, "t2_0": t2_0, "td": td,
             "d_true": resp.displacement_m}
 
@@ -123,13 +103,16 @@ def test_both_passes_are_cut_each_on_its_own_time_line(two_passes):
     td, d_true, t2_0 = two_passes["td"], two_passes["d_true"], two_passes["t2_0"]
     for sd, k, seg in ((plain, 1, two_passes["segs2"][2]), (offset, 0, two_passes["segs2"][1])):
         series = sd.series[k]
-        first = int(np.searchsorted(td, t2_0 + seg.measure_start_s - 1e-9))
+        # (the window starts 10 ms before the measuring start, in the same sine's settling, and ends
+        # 10 ms before the segment's end: it keeps the planned whole periods)
+        start = seg.measure_start_s - GUARD_S
+        first = int(np.searchsorted(td, t2_0 + start - 1e-9))
         # (a sample on the window's start is a tie the epoch stamps' rounding resolves either way)
         spread = min(np.std(series.displacement_m - d_true[first + lag:first + lag + series.time_s.size])
                      for lag in (-1, 0, 1))
         assert spread == pytest.approx(1e-6, rel=0.15)
         assert sd.d_rms_m[k] > 20e-6
-        nominal = np.array([seg.voltage_at(seg.measure_start_s + t) for t in series.time_s])
+        nominal = np.array([seg.voltage_at(start + t) for t in series.time_s])
         assert np.sqrt(np.mean(series.voltage_V ** 2)) == pytest.approx(np.sqrt(np.mean(nominal ** 2)), rel=0.02)
 
 
@@ -193,8 +176,8 @@ def test_a_two_pass_bag_reports_the_plan_and_the_realised_widths(two_passes, pla
     segs1, segs2 = two_passes["segs1"], two_passes["segs2"]
     rec1 = experiment_record(PASS1, segs1, T0_NS, len(segs1), False, 500.0, "A2", 1)
     rec2 = experiment_record(PASS2, segs2, T0_NS + 10**9, len(segs2), False, 500.0, "A2", 2, second.record_extra())
-    bag = _write_bag(tmp_path / "meta", np.arange(0, 0.1, 2e-3), np.zeros(50), np.arange(0, 0.1, 1e-3),
-                     np.zeros(100), [(pass_metadata_name(1), rec1), (pass_metadata_name(2), rec2)])
+    bag = write_rig_bag(tmp_path / "meta", np.arange(0, 0.1, 2e-3), np.zeros(50), np.arange(0, 0.1, 1e-3),
+                        np.zeros(100), [(pass_metadata_name(1), rec1), (pass_metadata_name(2), rec2)])
     summary = adaptive_summary(bag, res)
     data = summary.to_dict()
     assert data["passes"] == 2 and [r["segments"] for r in data["pass_records"]] == [len(segs1), len(segs2)]
