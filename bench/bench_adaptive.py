@@ -30,8 +30,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -39,8 +37,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_coverage_family import PAPER_HZ, family, seventeen, truth  # noqa: E402
-from bench_plan import NAMES, _summary, per_run, table  # noqa: E402
-from machine_info import machine  # noqa: E402
+from bench_plan import NAMES, _summary, resume_runs, runs_text  # noqa: E402
 
 from dea_ros.bag import BagWriter, sensor_data_qos  # noqa: E402
 from dea_ros.identify.adaptive import plan_second_pass  # noqa: E402
@@ -153,26 +150,11 @@ def main() -> None:
     ap.add_argument("--jsonl", default=str(Path(__file__).with_name("results") / "adaptive.jsonl"))
     ap.add_argument("--table-only", action="store_true")
     args = ap.parse_args()
-    path = Path(args.jsonl)
-    path.parent.mkdir(exist_ok=True)
-    done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-    if not args.table_only:
-        have = {(r["membrane"], r["seed"]) for r in done}
-        with tempfile.TemporaryDirectory() as work:
-            for seed in range(1, args.seeds + 1):
-                for p, f_r in family(args.membranes):
-                    if (p.name, seed) in have:
-                        continue
-                    rec = one_run(p, f_r, seed, Path(work))
-                    done.append(rec)
-                    with path.open("a") as fh:
-                        fh.write(json.dumps(rec) + "\n")
-                    print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of "
-                          f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
-    text = "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
-                      f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
-                      f"{len(done)} runs.", ""] + table(done) + [""] + per_run(done)) + "\n"
-    print(text)
+    members = [] if args.table_only else family(args.membranes)
+    with tempfile.TemporaryDirectory() as work:
+        done = resume_runs(Path(args.jsonl), members, args.seeds,
+                           lambda p, f_r, seed: one_run(p, f_r, seed, Path(work)))
+    print(runs_text(done))
 
 
 if __name__ == "__main__":

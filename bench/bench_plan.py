@@ -163,6 +163,32 @@ def per_run(records: list) -> list[str]:
     return out
 
 
+def resume_runs(path: Path, members, seeds: int, one_run) -> list:
+    """Every (membrane, seed) run of ``one_run(params, f_r, seed)`` not yet in the JSON lines file
+    ``path``, appended one line per run (an interrupted benchmark resumes); all records returned."""
+    path.parent.mkdir(exist_ok=True)
+    done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    have = {(r["membrane"], r["seed"]) for r in done}
+    for seed in range(1, seeds + 1):
+        for p, f_r in members:
+            if (p.name, seed) in have:
+                continue
+            rec = one_run(p, f_r, seed)
+            done.append(rec)
+            with path.open("a") as fh:
+                fh.write(json.dumps(rec) + "\n")
+            print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of "
+                  f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
+    return done
+
+
+def runs_text(done: list) -> str:
+    """The machine, the runs' count, the summary table and the per-run table."""
+    return "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
+                      f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
+                      f"{len(done)} runs.", ""] + table(done) + [""] + per_run(done)) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--membranes", type=int, default=3)
@@ -170,26 +196,8 @@ def main() -> None:
     ap.add_argument("--jsonl", default=str(Path(__file__).with_name("results") / "plan.jsonl"))
     ap.add_argument("--table-only", action="store_true")
     args = ap.parse_args()
-    path = Path(args.jsonl)
-    path.parent.mkdir(exist_ok=True)
-    done = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-    if not args.table_only:
-        have = {(r["membrane"], r["seed"]) for r in done}
-        members = family(args.membranes)
-        for seed in range(1, args.seeds + 1):
-            for p, f_r in members:
-                if (p.name, seed) in have:
-                    continue
-                rec = one_run(p, f_r, seed)
-                done.append(rec)
-                with path.open("a") as fh:
-                    fh.write(json.dumps(rec) + "\n")
-                print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of "
-                      f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
-    text = "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
-                      f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
-                      f"{len(done)} runs.", ""] + table(done) + [""] + per_run(done)) + "\n"
-    print(text)
+    members = [] if args.table_only else family(args.membranes)
+    print(runs_text(resume_runs(Path(args.jsonl), members, args.seeds, one_run)))
 
 
 if __name__ == "__main__":
