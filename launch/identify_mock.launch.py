@@ -13,7 +13,10 @@ laser_sensor_node.
 Arguments: ``membrane`` (nominal membrane: limits, model, geometry of the fit), ``true_params``
 (simulated membrane, default ``config/rig/mock_membrane.yaml``), ``protocol`` (paper, quick, test
 or a YAML), ``speed``, ``rate`` (command/amplifier/clock rate, Hz), ``laser_rate`` (Hz), ``noise``
-(m), ``output_dir``, ``run_name`` (empty: date and time), ``namespace``, ``amplifier_port``.
+(m), ``command_batch`` (commands of K amplifier updates per message, as ``dea-ros rig demo
+--command-batch``), ``output_dir``, ``run_name`` (empty: date and time), ``namespace``,
+``amplifier_port``. The clock waits for the amplifier's receipt of each command (batch) and stands
+while the identifier identifies.
 """
 import os
 
@@ -44,7 +47,9 @@ def generate_launch_description():
         parameters=[os.path.join(config, "identifier.yaml"),
                     {**sim, "protocol": arg("protocol", str), "output_dir": arg("output_dir", str),
                      "run_name": arg("run_name", str), "membrane": membrane, "command_rate_hz": rate,
-                     "identify": True, "exit_when_done": True}])
+                     "identify": True, "exit_when_done": True,
+                     # as dea-ros rig demo: one command per amplifier update, sent K updates at a time
+                     "command_trigger": "applied_voltage", "command_batch": arg("command_batch", int)}])
     return LaunchDescription([
         DeclareLaunchArgument("membrane", default_value="A2", description="nominal membrane (preset or YAML)"),
         DeclareLaunchArgument("true_params", default_value=os.path.join(config, "rig", "mock_membrane.yaml"),
@@ -54,6 +59,8 @@ def generate_launch_description():
         DeclareLaunchArgument("rate", default_value="250.0", description="command, amplifier and clock rate, Hz"),
         DeclareLaunchArgument("laser_rate", default_value="500.0", description="displacement sample rate, Hz"),
         DeclareLaunchArgument("noise", default_value="1.0e-6", description="laser noise sigma, m"),
+        DeclareLaunchArgument("command_batch", default_value="25",
+                              description="commands per voltage_cmd_batch (1: one voltage_cmd per update)"),
         DeclareLaunchArgument("output_dir", default_value="runs", description="folder of the runs"),
         DeclareLaunchArgument("run_name", default_value="", description="folder of this run (empty: date)"),
         DeclareLaunchArgument("namespace", default_value="dea", description="namespace of the rig"),
@@ -64,7 +71,10 @@ def generate_launch_description():
                          {"params_file": arg("true_params", str), "amplifier_port": port,
                           "noise_m": arg("noise", float), "sample_rate_hz": arg("laser_rate", float),
                           "laser_output": "topic", "publish_clock": True, "real_time_factor": arg("speed", float),
-                          "clock_rate_hz": rate, "lockstep": True}]),
+                          "clock_rate_hz": rate, "lockstep": True,
+                          # the clock waits for the amplifier's receipt of each command (batch) and
+                          # stands while nobody acknowledges (the identification after the protocol)
+                          "lockstep_topics": ["amplifier_node/command_received"], "pause_when_idle": True}]),
         LifecycleNode(package="dea_ros", executable="amplifier_node", name="amplifier_node", namespace=ns,
                       output="screen",
                       parameters=[os.path.join(config, "amplifier.yaml"),
