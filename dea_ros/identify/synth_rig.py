@@ -38,7 +38,7 @@ from ..model.parameters import MembraneParameters
 from ..sim.plant import LASER_QUANTISATION_M
 from ..solvers.integrate import simulate_held
 from .bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
-from .experiments import GEOMETRY_FIELDS, ExperimentSet
+from .experiments import GEOMETRY_FIELDS
 from .protocols import Protocol, segment_at
 from .synth import LaserReadings, static_points
 
@@ -80,10 +80,11 @@ def _slowest_time_constant_s(params: MembraneParameters, voltage_V: float) -> fl
     return float(1.0 / decay.min()) if decay.min() > 0 else math.inf
 
 
-def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, factor: float = 7.0) -> RigSettleTimes:
+def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, factor: float = 7.0,
+                     static_factor: float = 12.0) -> RigSettleTimes:
     """The holds of :func:`rig_protocol` for ``params`` (module docstring)."""
     tau = max(_slowest_time_constant_s(params, 0.0), _slowest_time_constant_s(params, amplitude_V / math.sqrt(2)))
-    return RigSettleTimes(tau, max(3.0, factor * tau), max(2.0, factor * tau), max(5.0, factor * tau))
+    return RigSettleTimes(tau, max(3.0, static_factor * tau), max(2.0, factor * tau), max(5.0, factor * tau))
 
 
 def rig_protocol(params: MembraneParameters, frequencies_Hz: Sequence[float], settle: RigSettleTimes | None = None,
