@@ -268,7 +268,7 @@ class LaserReadings:
 
 
 def static_points(params: MembraneParameters, laser: LaserReadings, masses_kg, voltages_V,
-                   samples: int) -> StaticData:
+                  samples: int) -> StaticData:
     """Static points (eq. 20): every mass at 0 V, every voltage at the dynamic mass; means of ``samples``."""
     masses, volts, disp = [], [], []
     for m in masses_kg:

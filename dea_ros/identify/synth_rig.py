@@ -19,8 +19,11 @@ the fit sees what it would see from the bag identifier_node records.
 
 Settle times (:func:`rig_settle_times`) follow from the membrane: the slowest time constant of the model
 linearised at rest (0 V and the sine's mean u^2: the creep mode, and the ringing of the mass, 1/(zeta
-omega)); a level of the staircase, the rest before the step and each sine are held ``factor`` (7) of it
-(e^-7 ~ 1e-3 of the transient left), at least the protocol defaults (3 s, 2 s, 5 s).
+omega)); a level of the staircase, the rest before the step and each sine are held ``factor`` (12) of it
+(e^-12 ~ 6e-6 of the transient left: a creep of ~300 um then misses equilibrium by ~2 nm, a tenth of the
+noise of a static point's mean; 7 left 0.1-0.3 um, several times it), at least the protocol defaults (3 s,
+2 s, 5 s). Near a fold the approach to the periodic response is slower than any time constant at rest
+(a Floquet multiplier near 1): such a record may still be settling, as on the rig.
 """
 from __future__ import annotations
 
@@ -80,7 +83,7 @@ def _slowest_time_constant_s(params: MembraneParameters, voltage_V: float) -> fl
     return float(1.0 / decay.min()) if decay.min() > 0 else math.inf
 
 
-def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, factor: float = 7.0,
+def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, factor: float = 12.0,
                      static_factor: float = 12.0) -> RigSettleTimes:
     """The holds of :func:`rig_protocol` for ``params`` (module docstring)."""
     tau = max(_slowest_time_constant_s(params, 0.0), _slowest_time_constant_s(params, amplitude_V / math.sqrt(2)))
