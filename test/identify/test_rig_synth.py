@@ -43,7 +43,7 @@ def test_a_protocol_run_from_rest_is_converged_continuous_and_starts_each_sine_a
     phases = [(rec.start_shift_s[s.index] * s.info["frequency_Hz"]) % 1.0 for s in sines]
     assert len(set(np.round(phases, 6))) == 2 and all(0.0 <= p < 1.0 for p in phases)
     for s in sines:                                     # the held voltage at the segment's start is the shifted sine
-        k = int(round(s.start_s * 500.0))
+        k = int(np.searchsorted(rec.time_s, s.start_s - 1e-9))
         expected = abs(2500.0 * math.sin(2 * math.pi * s.info["frequency_Hz"] * (rec.time_s[k] - s.start_s
                                                                                  + rec.start_shift_s[s.index])))
         assert rec.voltage_V[k] == pytest.approx(expected, abs=1e-6)
