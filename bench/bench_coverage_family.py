@@ -130,7 +130,8 @@ def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int, data: str = "o
     if data == "held":     # one held-voltage run from rest through the bag extraction (identify.synth_rig)
         protocol = rig_protocol(p, freqs)
         try:
-            exp, rec = rig_experiments(p, protocol, seed=seed, other_masses_kg=DEFAULT_STATIC_MASSES_KG)
+            exp, rec = rig_experiments(p, protocol, seed=seed, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
+                                       quantisation_m=LASER_QUANTISATION_M)
         except IntegrationError as exc:    # halving the tolerance moved the run: no converged data
             return {"membrane": p.name, "kind": kind, "seed": seed, "data": data, "error": str(exc), "params": {},
                     "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r, "curvature_status": "-", "identify_s": 0.0}

@@ -13,11 +13,12 @@ noise (1 nm for 1 um); otherwise the tolerance is tightened x10, twice, then
 :class:`~dea_ros.errors.IntegrationError` (near a fold a record can depend on the integration error).
 Each sine starts at a random phase of its excitation (its segment's voltage shifted by a uniform
 fraction of a period, so the measured whole periods start there too). The laser samples the displacement
-at every update with Gaussian noise and the ILD1320 quantisation
-(:class:`~dea_ros.identify.synth.LaserReadings`). The signals and the identifier's metadata record
-(:func:`~dea_ros.identify.bag_experiments.experiment_record`) go through the extraction a bag's data
-takes (:func:`~dea_ros.identify.bag_experiments.experiments_from_signals`): the fit sees what it would
-see from the bag identifier_node records.
+at every update with Gaussian noise and its quantisation
+(:class:`~dea_ros.identify.synth.LaserReadings`; the ILD1320's in the bench and the tests). The signals
+and the identifier's metadata record (:func:`~dea_ros.identify.bag_experiments.experiment_record`) go
+through the extraction a bag's data takes
+(:func:`~dea_ros.identify.bag_experiments.experiments_from_signals`): the fit sees what it would see
+from the bag identifier_node records.
 
 Settle times (:func:`rig_settle_times`) follow from the membrane: the slowest time constant of the model
 linearised at rest (0 V and the sine's mean u^2: the creep mode, and the ringing of the mass, 1/(zeta
@@ -40,7 +41,6 @@ from ..errors import IntegrationError
 from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..sim.plant import LASER_QUANTISATION_M
 from ..solvers.integrate import simulate_held
 from .bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
 from .experiments import GEOMETRY_FIELDS
@@ -124,9 +124,10 @@ def _held_voltages(segments: list, tv: np.ndarray, shifts: dict) -> np.ndarray:
 
 
 def record_protocol(params: MembraneParameters, protocol: Protocol, seed: int = 0, noise_m: float = 1e-6,
-                    quantisation_m: float = LASER_QUANTISATION_M, update_rate_Hz: float = 500.0,
+                    quantisation_m: float = 0.0, update_rate_Hz: float = 500.0,
                     random_start_phase: bool = True, rtol: float = 1e-10) -> RigRecording:
-    """The run of ``protocol`` on the membrane ``params`` from rest (module docstring)."""
+    """The run of ``protocol`` on the membrane ``params`` from rest (module docstring). ``quantisation_m``: the
+    laser's resolution (m; ``sim.plant.LASER_QUANTISATION_M`` for the ILD1320-10, 0: none)."""
     rng = np.random.default_rng(seed)
     segments = protocol.schedule()
     period = 1.0 / float(update_rate_Hz)
@@ -152,7 +153,7 @@ def record_protocol(params: MembraneParameters, protocol: Protocol, seed: int = 
 
 
 def rig_experiments(params: MembraneParameters, protocol: Protocol, seed: int = 0, noise_m: float = 1e-6,
-                    quantisation_m: float = LASER_QUANTISATION_M, update_rate_Hz: float = 500.0,
+                    quantisation_m: float = 0.0, update_rate_Hz: float = 500.0,
                     other_masses_kg: Sequence[float] = (), static_samples: int = 100,
                     random_start_phase: bool = True) -> tuple:
     """(ExperimentSet, RigRecording): the run of :func:`record_protocol` cut by the bag extraction, the

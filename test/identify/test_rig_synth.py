@@ -11,6 +11,7 @@ import pytest
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.static_fit import EXTENDED_COMBINATION_MATRIX
 from dea_ros.identify.synth_rig import record_protocol, rig_experiments, rig_protocol, rig_settle_times
+from dea_ros.sim.plant import LASER_QUANTISATION_M
 from dea_ros.solvers.inputs import SampledVoltage
 from dea_ros.solvers.integrate import simulate, simulate_held
 
@@ -37,7 +38,7 @@ def test_a_protocol_run_from_rest_is_converged_continuous_and_starts_each_sine_a
     settle = rig_settle_times(UNLIKE)
     assert settle.sine_settle_s >= 7 * UNLIKE.eta1_Pa_s / UNLIKE.k1_Pa * 0.9   # the creep mode sets it here
     proto = rig_protocol(UNLIKE, (9.0, 40.0), settle)
-    rec = record_protocol(UNLIKE, proto, seed=3)
+    rec = record_protocol(UNLIKE, proto, seed=3, quantisation_m=LASER_QUANTISATION_M)
     assert rec.tolerance_check_m < 1e-9                  # 1e-3 of the laser noise, checked in every run
     sines = [s for s in rec.segments if s.kind == "sine"]
     phases = [(rec.start_shift_s[s.index] * s.info["frequency_Hz"]) % 1.0 for s in sines]
@@ -55,7 +56,8 @@ def test_a_protocol_run_from_rest_is_converged_continuous_and_starts_each_sine_a
 
 def test_identification_from_a_held_run_is_within_its_intervals():
     proto = rig_protocol(UNLIKE, PAPER_FREQUENCIES_HZ)
-    exp, rec = rig_experiments(UNLIKE, proto, seed=5, other_masses_kg=(0.0, 0.001, 0.002, 0.003, 0.004, 0.005))
+    exp, rec = rig_experiments(UNLIKE, proto, seed=5, other_masses_kg=(0.0, 0.001, 0.002, 0.003, 0.004, 0.005),
+                               quantisation_m=LASER_QUANTISATION_M)
     assert exp.sines[0].waveform == "abs_sine" and len(exp.sines[0].inputs) == 4   # cut as from a bag
     res = identify(exp, evaluate_fit=False)
     st = res.statistics
