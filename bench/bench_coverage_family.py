@@ -32,6 +32,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -41,10 +42,11 @@ import numpy as np  # noqa: E402
 
 from machine_info import machine  # noqa: E402
 
-from dea_ros.errors import DeaRosError  # noqa: E402
+from dea_ros.errors import DeaRosError, IntegrationError  # noqa: E402
 from dea_ros.identify.pipeline import identify  # noqa: E402
 from dea_ros.identify.static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation  # noqa: E402
-from dea_ros.identify.synth import synthesize_experiments  # noqa: E402
+from dea_ros.identify.synth import DEFAULT_STATIC_MASSES_KG, synthesize_experiments  # noqa: E402
+from dea_ros.identify.synth_rig import rig_experiments, rig_protocol, rig_settle_times  # noqa: E402
 from dea_ros.model import preset, static_equilibrium  # noqa: E402
 from dea_ros.sim.plant import LASER_QUANTISATION_M  # noqa: E402
 from dea_ros.solvers.inputs import SinePeriodic  # noqa: E402
@@ -121,18 +123,30 @@ def truth(p, name: str) -> float:
     return p.relative_permittivity if name == "eps_r" else float(getattr(p, name))
 
 
-def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int) -> dict:
+def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int, data: str = "orbit") -> dict:
     freqs = PAPER_HZ if kind == "paper" else seventeen(f_r)
     t0 = time.perf_counter()
-    exp = synthesize_experiments(p, 1e-6, seed=seed, sine_frequencies_Hz=freqs, series_frequencies_Hz=(),
-                                 quantisation_m=LASER_QUANTISATION_M, random_start_phase=True)
+    held = {}
+    if data == "held":     # one held-voltage run from rest through the bag extraction (identify.synth_rig)
+        protocol = rig_protocol(p, freqs)
+        try:
+            exp, rec = rig_experiments(p, protocol, seed=seed, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
+                                       quantisation_m=LASER_QUANTISATION_M)
+        except IntegrationError as exc:    # halving the tolerance moved the run: no converged data
+            return {"membrane": p.name, "kind": kind, "seed": seed, "data": data, "error": str(exc), "params": {},
+                    "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r, "curvature_status": "-", "identify_s": 0.0}
+        held = {"protocol_s": protocol.duration_s(), "settle": dataclasses.asdict(rig_settle_times(p)),
+                "tolerance_check_m": rec.tolerance_check_m}
+    else:
+        exp = synthesize_experiments(p, 1e-6, seed=seed, sine_frequencies_Hz=freqs, series_frequencies_Hz=(),
+                                     quantisation_m=LASER_QUANTISATION_M, random_start_phase=True)
     t1 = time.perf_counter()
     res = identify(exp, evaluate_fit=False)
     t2 = time.perf_counter()
     st = res.statistics
     rec = {"membrane": p.name, "kind": kind, "seed": seed, "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r,
            "curvature_status": res.curvature_status, "joint_failed": res.joint is None, "synth_s": t1 - t0,
-           "identify_s": t2 - t1, "params": {}}
+           "identify_s": t2 - t1, "params": {}, "data": data, **held}
     for n in NAMES:
         if n not in st.names:
             continue
@@ -154,7 +168,11 @@ def table(records: list) -> list[str]:
     out = ["| data | parameter | runs | median abs rel. error | worst | 95 % CI covers the truth | "
            "z: mean / std |", "|---|---|---|---|---|---|---|"]
     for kind in ("paper", "17"):
-        rs = [r for r in records if r["kind"] == kind]
+        rs = [r for r in records if r["kind"] == kind and "error" not in r]
+        errors = [r for r in records if r["kind"] == kind and "error" in r]
+        if errors:
+            out.append(f"| {'paper' if kind == 'paper' else '17'} | no converged data (left out) | {len(errors)} | "
+                       + ", ".join(f"{r['membrane']} seed {r['seed']}" for r in errors) + " | | | |")
         if not rs:
             continue
         label = "paper's 4 freq." if kind == "paper" else "17 freq."
@@ -225,6 +243,9 @@ def main() -> None:
     ap.add_argument("--table-only", action="store_true")
     ap.add_argument("--compare", default="", help="an earlier results file: side by side on the common runs")
     ap.add_argument("--members", default="", help="comma-separated membrane names (default: all)")
+    ap.add_argument("--data", default="orbit", choices=("orbit", "held"),
+                    help="orbit: synth's records (periodic orbit, step from rest); held: one held-voltage run "
+                         "from rest per set, cut by the bag extraction (identify.synth_rig)")
     args = ap.parse_args()
     path = Path(args.jsonl)
     path.parent.mkdir(exist_ok=True)
@@ -240,7 +261,7 @@ def main() -> None:
                 for kind in args.sets.split(","):
                     if (p.name, kind, seed) in have:
                         continue
-                    rec = one_run(p, f_r, true_peak, kind, seed)
+                    rec = one_run(p, f_r, true_peak, kind, seed, args.data)
                     done.append(rec)
                     with path.open("a") as fh:
                         fh.write(json.dumps(rec) + "\n")

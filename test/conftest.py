@@ -29,6 +29,7 @@ NUMERIC_HEAVY_MODULES = (
 NUMERIC_HEAVY_TESTS = (
     "identify/test_commands.py::test_synth_then_identify_json",
     "identify/test_report.py::test_report_folder",
+    "identify/test_rig_synth.py::test_identification_from_a_held_run_is_within_its_intervals",
     "solvers/test_kernels.py::test_sweep_with_bands_is_the_same_as_the_reference",
     "study/test_study.py::test_dask_local_cluster_with_two_workers_matches_the_serial_run_point_by_point",
 )

@@ -54,7 +54,8 @@ from .experiments import (
     third_difference_noise,
 )
 
-__all__ = ["BagTopics", "BagSignals", "read_signals", "experiments_from_bag", "EXPERIMENT_METADATA"]
+__all__ = ["BagTopics", "BagSignals", "read_signals", "experiments_from_bag", "experiments_from_signals",
+           "EXPERIMENT_METADATA"]
 
 #: name of the MCAP metadata record written by identifier_node
 EXPERIMENT_METADATA = "dea_ros.experiment"
@@ -350,7 +351,13 @@ def experiments_from_bag(path, topics: BagTopics = BagTopics(), segments_file=No
     ``measured_inputs``: the sine experiments carry the applied voltage of each window as a
     periodic input (:meth:`SineSeries.measured_input`), used by the fit instead of the nominal sine.
     """
-    signals = read_signals(path, topics)
+    return experiments_from_signals(read_signals(path, topics), path, segments_file, membrane, measured_inputs)
+
+
+def experiments_from_signals(signals: BagSignals, path, segments_file=None, membrane=None,
+                             measured_inputs: bool = True) -> ExperimentSet:
+    """:func:`experiments_from_bag` of the signals a bag holds (``path`` names them in messages and
+    sources): what :func:`~dea_ros.identify.synth_rig.rig_experiments` hands the same extraction."""
     passes = _schedule(signals, segments_file, path)
     info = passes[0][0]
     membrane_ref = membrane or info.get("membrane", "A2")

@@ -73,6 +73,8 @@ __all__ = [
     "DEFAULT_STATIC_VOLTAGES_V",
     "DEFAULT_SINE_FREQUENCIES_HZ",
     "DEFAULT_SERIES_FREQUENCIES_HZ",
+    "LaserReadings",
+    "static_points",
 ]
 
 DEFAULT_STATIC_MASSES_KG = (0.0, 0.001, 0.002, 0.003, 0.004, 0.005)
@@ -206,8 +208,8 @@ def synthesize_experiments(
     if noise_m > 1e-4:
         raise ValueError(f"noise_m: {noise_m} m is larger than the deflections; metres expected (1 um -> 1e-6)")
     rng = np.random.default_rng(seed)
-    laser = _Laser(float(noise_m), float(quantisation_m), rng)
-    static = _static_points(params, laser, static_masses_kg, static_voltages_V, static_samples)
+    laser = LaserReadings(float(noise_m), float(quantisation_m), rng)
+    static = static_points(params, laser, static_masses_kg, static_voltages_V, static_samples)
     if progress:
         progress({"stage": "synth", "what": "static", "points": static.n_points})
     # ---- step (eq. 23)
@@ -248,7 +250,7 @@ def synthesize_experiments(
     )
 
 
-class _Laser:
+class LaserReadings:
     """What the laser reads: Gaussian noise, then the digital resolution (m)."""
 
     def __init__(self, noise_m: float, quantisation_m: float, rng):
@@ -265,16 +267,16 @@ class _Laser:
         return float(d_m + self.rng.normal(0.0, self.noise_m / math.sqrt(samples)))
 
 
-def _static_points(params: MembraneParameters, laser: _Laser, masses_kg, voltages_V,
-                   samples: int) -> StaticData:
+def static_points(params: MembraneParameters, laser: LaserReadings, masses_kg, voltages_V,
+                  samples: int) -> StaticData:
     """Static points (eq. 20): every mass at 0 V, every voltage at the dynamic mass; means of ``samples``."""
     masses, volts, disp = [], [], []
     for m in masses_kg:
         masses.append(float(m))
         volts.append(0.0)
         disp.append(float(static_equilibrium(params, 0.0, mass_kg=float(m)).displacement_m))
-    eq_v = static_equilibrium(params, np.asarray(voltages_V, float))
-    for u, d in zip(voltages_V, np.atleast_1d(eq_v.displacement_m)):
+    eq_d = static_equilibrium(params, np.asarray(voltages_V, float)).displacement_m if len(voltages_V) else ()
+    for u, d in zip(voltages_V, np.atleast_1d(eq_d)):
         masses.append(float(params.mass_kg))
         volts.append(float(u))
         disp.append(float(d))
@@ -282,7 +284,7 @@ def _static_points(params: MembraneParameters, laser: _Laser, masses_kg, voltage
     return StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static")
 
 
-def _sines(params: MembraneParameters, laser: _Laser, freqs: np.ndarray, offsets: tuple, amplitude_V: float,
+def _sines(params: MembraneParameters, laser: LaserReadings, freqs: np.ndarray, offsets: tuple, amplitude_V: float,
            series_set: set, record_s: float, sample_rate_Hz: float, baseline_samples: int, waveform: str,
            progress) -> tuple:
     """([SineData] of an upward sweep on the rig (eqs. 21, 24), the response kind per frequency)."""

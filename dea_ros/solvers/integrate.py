@@ -3,6 +3,9 @@
 * :func:`simulate` integrates any :class:`~dea_ros.solvers.inputs.VoltageSignal`
   with SciPy's adaptive integrators and the analytic Jacobian, restarting at the
   signal's breakpoints (steps), from the static equilibrium by default.
+* :func:`simulate_held` integrates the voltages an amplifier holds for one update period each
+  (zero-order hold) with the compiled embedded Dormand-Prince 5(4) pair, every hold on its own
+  (:mod:`.integrate_kernels`): the rig's applied voltage, fast over long experiments.
 * :class:`RealTimeStepper` advances the state by a fixed step with classical
   RK4 on plain floats (no numpy in the loop), for the model node at 1 kHz and
   faster. The input is held constant over a step (zero-order hold, as a DAQ does).
@@ -20,8 +23,9 @@ from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from .inputs import ConstantVoltage, VoltageSignal, check_voltage
 from ..errors import IntegrationError
+from .integrate_kernels import held_trajectory
 
-__all__ = ["TimeResponse", "simulate", "RealTimeStepper", "state_scale", "IntegrationError"]
+__all__ = ["TimeResponse", "simulate", "simulate_held", "RealTimeStepper", "state_scale", "IntegrationError"]
 
 
 def state_scale(params: MembraneParameters) -> np.ndarray:
@@ -124,6 +128,32 @@ def simulate(
         x = sol.y[:, -1]
     wall = time.perf_counter() - t0
     return TimeResponse(t_eval, out, np.asarray(signal(t_eval), float), wall, nfev)
+
+
+def simulate_held(params: MembraneParameters, voltages_V, update_period_s: float, x0=None, rtol: float = 1e-10,
+                  atol_scale: float = 1e-10) -> TimeResponse:
+    """The model under voltages held for one update period each: ``voltages_V[k]`` from k to k + 1 periods.
+
+    Returns the states at the update instants 0, T, ..., nT (n + 1 of them; the voltage column is the value
+    held from each instant on, 0 V after the last). ``x0`` defaults to the rest (static equilibrium) at the
+    first voltage. Adaptive embedded Dormand-Prince 5(4) on each hold (:mod:`.integrate_kernels`), relative
+    tolerance ``rtol``, absolute ``atol_scale`` times the state scale (:func:`state_scale`).
+    """
+    u = check_voltage(np.asarray(voltages_V, float).reshape(-1), "voltages_V")
+    if not (np.isfinite(update_period_s) and update_period_s > 0):
+        raise ValueError(f"update_period_s: must be > 0, got {update_period_s}")
+    x = initial_state(params, float(u[0]) if u.size else 0.0) if x0 is None else np.asarray(x0, float).copy()
+    if x.shape != (3,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x0: must be 3 finite numbers [d, eps1, d'], got {x0!r}")
+    t0 = time.perf_counter()
+    constants = tuple(float(c) for c in DEAModel.from_parameters(params).constants)
+    states, accepted, rejected, failed = held_trajectory(constants, x, u * u, float(update_period_s), float(rtol),
+                                                         atol_scale * state_scale(params))
+    if failed >= 0:
+        raise IntegrationError(f"held-voltage integration failed in hold {failed} "
+                               f"({failed * update_period_s:.4f} s, {u[failed]:.1f} V): step size collapsed")
+    times = np.arange(u.size + 1) * float(update_period_s)
+    return TimeResponse(times, states, np.r_[u, 0.0], time.perf_counter() - t0, 7 * (accepted + rejected))
 
 
 class RealTimeStepper:
