@@ -156,15 +156,19 @@ class PositionController:
         self.pid = PIDOnU2(self.gains)
         self.strain: StrainIntegrator | None = None
         self.state: _State | None = None
-        umax2 = self.max_voltage_V ** 2
-        frac = config.end_margin_fraction
-        self.usable_range_m = (self.inverse.static_displacement(frac * umax2),
-                               self.inverse.static_displacement((1.0 - frac) * umax2))
+        self.usable_range_m = self.usable_range()
         self.plan: _Plan | None = None
         self.plan_checks = plan_checks(config.min_move_time_s)
         self.plan_note: tuple[bool, str] | None = None   # (accepted?, text) of the last finished plan
 
     # ---------------------------------------------------------------- setup
+    def usable_range(self) -> tuple[float, float]:
+        """The usable range of the model in use (m): the static u^2 keeps ``end_margin_fraction`` of u_max^2
+        from 0 and from u_max^2 (recomputed when a retune changes the model: :func:`.adaptive.apply_retune`)."""
+        umax2 = self.max_voltage_V ** 2
+        frac = self.config.end_margin_fraction
+        return (self.inverse.static_displacement(frac * umax2), self.inverse.static_displacement((1.0 - frac) * umax2))
+
     @property
     def reachable_range_m(self) -> tuple[float, float]:
         return self.inverse.reachable_range_m
