@@ -130,9 +130,8 @@ def describe_payload(mass_ratio: float) -> str:
     """E.g. "moving mass 10 % above the identified model: payload changed (...)"."""
     pct = abs(mass_ratio - 1.0) * 100.0
     return (f"moving mass {pct:.0f} % {'above' if mass_ratio > 1.0 else 'below'} the identified model: payload "
-            f"changed (electrostatic gain and static stiffness both {pct:.0f} % "
-            f"{'lower' if mass_ratio > 1.0 else 'higher'}; the force balance cannot tell a payload change from "
-            "all stresses changing by the same factor)")
+            f"changed (or the gain and the stiffness {'fell' if mass_ratio > 1.0 else 'rose'} together: the force "
+            "balance cannot tell them apart)")
 
 
 class HealthMonitor:
@@ -184,12 +183,12 @@ class HealthMonitor:
         return HealthReport(level, message, findings, values)
 
     def _payload(self, ratios: dict, findings: list, values: list) -> list:
-        """The gain and the static stiffness findings replaced by one moving-mass finding when they agree."""
+        """A moving-mass finding first when the gain and the static stiffness findings agree (theirs kept after it:
+        the same data fit either explanation, e.g. the tracker's first seconds at few operating points)."""
         mass = moving_mass_ratio(ratios)
         values.append(("tracked_moving_mass_ratio", f"{mass:.4f}"))
         pair = [f for f in findings if f.key in ("electrostatic_gain", "static_stiffness")]
         g, h = ratios["electrostatic_gain"], ratios["static_stiffness"]
         if len(pair) < 2 or (g - 1.0) * (h - 1.0) <= 0.0 or abs(g - h) > self.thresholds.payload_agreement:
             return findings
-        rest = [f for f in findings if f not in pair]
-        return rest + [Finding("moving_mass", max(f.level for f in pair), describe_payload(mass))]
+        return [Finding("moving_mass", max(f.level for f in pair), describe_payload(mass))] + findings
