@@ -175,10 +175,8 @@ def design_gains(inverse: ModelInverse, operating_point_m: float, loop_delay_s: 
                                                 ki = w_n^2 p_i
 
     zeta is the largest value in [0.02, 1] for which the loop with the delay keeps the closed loop
-    stable, ``Ms <= max_sensitivity`` and ``noise_gain <= max_noise_gain``; when none meets both (a
-    long delay), the stable one with ``Ms <= max_sensitivity`` and the least noise gain (reported in
-    the result); ValueError when none is robust. The derivative filter time constant is
-    ``1 / (filter_ratio * kd)``. See the module docstring.
+    stable, ``Ms <= max_sensitivity`` and ``noise_gain <= max_noise_gain``; the derivative filter
+    time constant is ``1 / (filter_ratio * kd)``. See the module docstring.
     """
     if not (loop_delay_s >= 0.0 and math.isfinite(loop_delay_s)):
         raise ValueError(f"loop_delay_s: must be >= 0 s, got {loop_delay_s}")
@@ -208,21 +206,10 @@ def design_gains(inverse: ModelInverse, operating_point_m: float, loop_delay_s: 
     results = [evaluate(z) for z in grid]
     good = [i for i, (ok, _) in enumerate(results) if ok]
     if not good:
-        # the noise bound yields to robustness: the robust design that puts the least noise on the mass
-        # (a longer delay needs more damping for Ms than the noise bound allows; its noise gain is reported)
-        robust = [i for i, (_, m) in enumerate(results)
-                  if m["stable"] and m["max_sensitivity"] <= max_sensitivity]
-        if not robust:
-            raise ValueError(
-                f"no damping ratio keeps the loop stable with max sensitivity <= {max_sensitivity} for a loop "
-                f"delay of {loop_delay_s * 1e3:.2f} ms; reduce loop_delay_s"
-            )
-        i = min(robust, key=lambda j: results[j][1]["noise_gain"])
-        kp, ki, kd, tf, p_i = gains(float(grid[i]))
-        m = results[i][1]
-        return FeedbackGains(kp, ki, kd, tf, float(grid[i]), p_i, float(loop_delay_s), float(operating_point_m),
-                             float(k), float(c), m["max_sensitivity"], m["noise_gain"], m["phase_margin_deg"],
-                             m["gain_margin"], m["crossover_rad_per_s"])
+        raise ValueError(
+            f"no damping ratio keeps the loop stable with max sensitivity <= {max_sensitivity} and noise gain "
+            f"<= {max_noise_gain} for a loop delay of {loop_delay_s * 1e3:.2f} ms; reduce loop_delay_s"
+        )
     i = good[-1]
     zeta, m = float(grid[i]), results[i][1]
     if i + 1 < grid.size:           # refine between the last good and the first bad grid point
