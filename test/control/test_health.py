@@ -13,6 +13,8 @@ from dea_ros.control import (
     PredictionErrorStats,
     SimulatedRig,
     describe_drift,
+    describe_payload,
+    moving_mass_ratio,
     run_closed_loop,
 )
 from dea_ros.control.health import ERROR, OK, WARN
@@ -105,8 +107,6 @@ def test_the_unchanged_plant_raises_no_alarm(rig_truth):
 
 
 def test_a_common_change_of_gain_and_stiffness_is_one_payload_finding():
-    from dea_ros.control import describe_payload, moving_mass_ratio
-
     ratios = {"electrostatic_gain": 0.905, "static_stiffness": 0.912, "viscoelastic_stiffness": 0.97,
               "creep_time": 1.05}
     assert moving_mass_ratio(ratios) == pytest.approx(2.0 / 1.817)

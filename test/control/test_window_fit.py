@@ -11,9 +11,12 @@ import pytest
 from dea_ros.control import (
     AdaptiveModel,
     ControllerConfig,
+    HealthMonitor,
+    ModelInverse,
     ModelTracker,
     PositionController,
     SimulatedRig,
+    moving_mass_ratio,
     run_closed_loop,
 )
 from dea_ros.control.window_fit import WindowFitConfig, fit_window
@@ -165,8 +168,6 @@ def test_a_payload_change_reads_as_the_moving_mass(base, mass_factor, seed, unli
     gain and the static stiffness both x 1/factor; moving_mass_ratio gives the factor back within 1.5 %, the
     health report says "moving mass N % above/below ...: payload changed" (not electrode ageing), and the
     controller's usable range follows the moved equilibrium (a setpoint at the new mid-range is taken as is)."""
-    from dea_ros.control import HealthMonitor, ModelInverse, moving_mass_ratio
-
     ident = unlike if base == "unlike" else rig_truth
     plant = ident.replace(mass_kg=ident.mass_kg * mass_factor)
     # setpoints in the middle of the identified range: both ends moved with the payload
@@ -191,8 +192,6 @@ def test_a_payload_change_reads_as_the_moving_mass(base, mass_factor, seed, unli
 def test_without_excitation_no_payload_is_claimed(rig_truth):
     """The unchanged plant held at one setpoint: the window carries one static combination only; the moving-mass
     reading stays at 1 and nothing is reported."""
-    from dea_ros.control import HealthMonitor, moving_mass_ratio
-
     ad = _operate(rig_truth, rig_truth, 12.0, seed=5, rest_after_s=0.5)
     r = ad.tracker.ratios
     assert abs(moving_mass_ratio(r) - 1.0) < 0.003, r
