@@ -11,6 +11,11 @@ ILD1320 quantisation, the amplifier's safety core with its slew limit). Each run
   2 % settling time of the TRUE displacement from the step command (shaped by the controller);
 * 12-14 s: a 12 Hz 25 um sine around mid-stroke (faded in over 2 periods): RMS error from 12.5 s.
 
+Each row pools three noise seeds (7, 8, 9: 12 steps; a single seed's four steps are a lottery of noise
+excursions out of the 0.8 um band) and adds one run with a noise-free laser (the deterministic settling).
+A clamped step is measured against the point it was clamped to. The last payload row puts its steps in
+the middle of the controller's range at 10 s (the tracked one: a payload moves both ends).
+
 Twice per case: with the identified model fixed (``track_model`` off) and with online tracking
 (control/tracking.py, control/adaptive.py: feedforward and gains retuned every 2 s). Drift
 detection (control/health.py with its default thresholds): the time of the first WARN for eps_r
