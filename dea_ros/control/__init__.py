@@ -22,7 +22,8 @@
 from .adaptive import AdaptiveModel, RetunePlan, RetuneRequest, apply_retune, prepare_plan, prepare_retune
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
-from .health import HealthMonitor, HealthReport, HealthThresholds, PredictionErrorStats, describe_drift
+from .health import (HealthMonitor, HealthReport, HealthThresholds, PredictionErrorStats, describe_drift,
+                     describe_payload, moving_mass_ratio)
 from .inverse import ModelInverse, StrainIntegrator, UnreachableReferenceError
 from .monitor import SampleStream, TrackingWindow
 from .prediction import ModelPredictor
@@ -54,4 +55,5 @@ __all__ = [
     "ModelTracker", "TrackedModel", "TrackerConfig", "AdaptiveModel", "RetunePlan", "apply_retune", "prepare_retune",
     "RetuneRequest", "prepare_plan", "RetuneWorker", "BackgroundRetune", "RETUNE_MODES",
     "HealthMonitor", "HealthReport", "HealthThresholds", "PredictionErrorStats", "describe_drift",
+    "describe_payload", "moving_mass_ratio",
 ]

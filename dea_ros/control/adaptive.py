@@ -148,6 +148,7 @@ def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = 
     if plan.config is not None:
         ctl.config = plan.config               # the feedforward lead follows the loop delay
     ctl.max_voltage_V = min(ctl.config.max_voltage_V, plan.inverse.top_voltage_V)
+    ctl.usable_range_m = ctl.usable_range()    # the ends of the range follow the tracked model (a payload moves them)
     ctl.gains = plan.gains
     ctl.pid.gains = plan.gains
     if ctl.strain is not None:

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass, field
 
 __all__ = ["OK", "WARN", "ERROR", "HealthThresholds", "PredictionErrorStats", "Finding", "HealthReport",
-           "HealthMonitor", "describe_drift"]
+           "HealthMonitor", "describe_drift", "describe_payload", "moving_mass_ratio"]
 
 OK, WARN, ERROR = 0, 1, 2
 
@@ -41,6 +41,9 @@ class HealthThresholds:
                                                 "viscoelastic_stiffness": 0.15, "creep_time": 0.3})
     error: dict = field(default_factory=lambda: {"electrostatic_gain": 0.10, "static_stiffness": 0.10,
                                                  "viscoelastic_stiffness": 0.40, "creep_time": 0.6})
+    # the gain and the static stiffness moved together (within this of each other, same direction, both
+    # beyond WARN): reported as one change of the moving mass (see :func:`describe_payload`)
+    payload_agreement: float = 0.01
     prediction_rms_warn_m: float = 5e-6
     prediction_rms_error_m: float = 20e-6
     persistence_s: float = 3.0
@@ -110,6 +113,27 @@ def describe_drift(key: str, ratio: float) -> str:
     return f"{LABELS[key]} {how}: {cause}"
 
 
+def moving_mass_ratio(ratios: dict) -> float:
+    """The moving mass / the identified one that the tracked gain and static stiffness stand for.
+
+    Eq. 5 (and the dynamics, eq. 18) depend on the mass only through the stresses divided by m:
+    ``d'' = g - (c1bar / m)(d / s)(sigma_Maxwell + sigma_h + sigma_1 + sigma_2)``. A payload m x r is
+    exactly the identified mass with every stress x 1/r (eta2's included), in the static balance and
+    in the inertia alike: no record of voltage and displacement separates the two, so the tracker
+    estimates the stresses and a heavier payload reads as the gain and the static stiffness lower by
+    the same factor. This is that factor's inverse (the mean of the two ratios).
+    """
+    return 2.0 / (ratios["electrostatic_gain"] + ratios["static_stiffness"])
+
+
+def describe_payload(mass_ratio: float) -> str:
+    """E.g. "moving mass 10 % above the identified model: payload changed (...)"."""
+    pct = abs(mass_ratio - 1.0) * 100.0
+    return (f"moving mass {pct:.0f} % {'above' if mass_ratio > 1.0 else 'below'} the identified model: payload "
+            f"changed (or the gain and the stiffness {'fell' if mass_ratio > 1.0 else 'rose'} together: the force "
+            "balance cannot tell them apart)")
+
+
 class HealthMonitor:
     """Turns tracked ratios, prediction errors and the reachable range into findings (with persistence)."""
 
@@ -134,6 +158,8 @@ class HealthMonitor:
             if self._persistent(key, dev > th.warn[key], t_s):
                 level = ERROR if dev > th.error[key] else WARN
                 findings.append(Finding(key, level, describe_drift(key, ratio)))
+        if ratios and "electrostatic_gain" in ratios and "static_stiffness" in ratios:
+            findings = self._payload(ratios, findings, values)
         if prediction is not None and prediction.n:
             rms = prediction.rms_m
             values += [("prediction_error_mean_m", f"{prediction.mean_m:.3e}"),
@@ -155,3 +181,14 @@ class HealthMonitor:
         level = max((f.level for f in findings), default=OK)
         message = "; ".join(f.text for f in sorted(findings, key=lambda f: -f.level)) or "membrane as identified"
         return HealthReport(level, message, findings, values)
+
+    def _payload(self, ratios: dict, findings: list, values: list) -> list:
+        """A moving-mass finding first when the gain and the static stiffness findings agree (theirs kept after it:
+        the same data fit either explanation, e.g. the tracker's first seconds at few operating points)."""
+        mass = moving_mass_ratio(ratios)
+        values.append(("tracked_moving_mass_ratio", f"{mass:.4f}"))
+        pair = [f for f in findings if f.key in ("electrostatic_gain", "static_stiffness")]
+        g, h = ratios["electrostatic_gain"], ratios["static_stiffness"]
+        if len(pair) < 2 or (g - 1.0) * (h - 1.0) <= 0.0 or abs(g - h) > self.thresholds.payload_agreement:
+            return findings
+        return [Finding("moving_mass", max(f.level for f in pair), describe_payload(mass))] + findings

@@ -13,6 +13,8 @@ from dea_ros.control import (
     PredictionErrorStats,
     SimulatedRig,
     describe_drift,
+    describe_payload,
+    moving_mass_ratio,
     run_closed_loop,
 )
 from dea_ros.control.health import ERROR, OK, WARN
@@ -102,3 +104,31 @@ def test_a_3_percent_change_is_reported_within_30_s(rig_truth, what):
 
 def test_the_unchanged_plant_raises_no_alarm(rig_truth):
     assert _first_warning(rig_truth, rig_truth, 120.0, seed=22) is None
+
+
+def test_a_common_change_of_gain_and_stiffness_is_one_payload_finding():
+    ratios = {"electrostatic_gain": 0.905, "static_stiffness": 0.912, "viscoelastic_stiffness": 0.97,
+              "creep_time": 1.05}
+    assert moving_mass_ratio(ratios) == pytest.approx(2.0 / 1.817)
+    mon = HealthMonitor()
+    reports = [mon.assess(float(t), ratios) for t in range(5)]
+    assert reports[0].level == 0 and reports[-1].level == 1
+    assert reports[-1].message.startswith(describe_payload(moving_mass_ratio(ratios)) + "; electrostatic gain 9 %")
+    assert reports[-1].message.startswith("moving mass 10 % above the identified model: payload changed")
+    assert "static stiffness 9 % below" in reports[-1].message      # the alternative stays in the report
+    assert ("tracked_moving_mass_ratio", f"{moving_mass_ratio(ratios):.4f}") in reports[-1].values
+    # ERROR when the pair is beyond the ERROR threshold; a lighter payload reads "below"
+    mon = HealthMonitor()
+    light = dict(ratios, electrostatic_gain=1.12, static_stiffness=1.115)
+    last = [mon.assess(float(t), light) for t in range(5)][-1]
+    assert last.level == 2 and last.message.startswith("moving mass 11 % below")
+
+
+@pytest.mark.parametrize("gain, static", [(0.94, 1.0), (0.94, 1.04), (0.94, 0.965), (1.0, 0.96)])
+def test_separate_changes_are_not_called_a_payload(gain, static):
+    """Only the gain, opposite directions, or the two apart by more than payload_agreement: separate findings."""
+    mon = HealthMonitor()
+    ratios = {"electrostatic_gain": gain, "static_stiffness": static, "viscoelastic_stiffness": 1.0,
+              "creep_time": 1.0}
+    last = [mon.assess(float(t), ratios) for t in range(5)][-1]
+    assert last.level >= 1 and "moving mass" not in last.message, last.message
