@@ -43,14 +43,14 @@ update for t_{k+1}, so a sample-driven controller sees a fixed delay of exactly 
 acquisition to applied voltage (position_controller_node's ``loop_delay_s`` at 1 kHz).
 
 The node sleeps between events: a thread blocks on the amplifier's UDP socket and, when a datagram
-arrives, runs the tick itself (publishing from that thread: no executor round per tick, the largest
-part of the mock's CPU per tick, issue 22); acknowledgements arrive as messages on the executor, and the
-pacing timer runs only while the clock is ahead of ``real_time_factor``. Both paths hold one lock. With ``pause_when_idle`` (``dea-ros rig
-demo``) the clock stands once the lockstep participants that acknowledged fall silent for
-``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A paused rig costs no CPU:
-the nodes' timers on the simulated clock do not fire, nothing polls (issue 22). Before the first
-acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V when its
-clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
+arrives, runs the tick itself (publishing from that thread: no executor round per tick, the largest part
+of the mock's CPU per tick, issue 22); acknowledgements arrive as messages on the executor, and the
+pacing timer runs only while the clock is ahead of ``real_time_factor``. Both paths hold one lock. With
+``pause_when_idle`` (``dea-ros rig demo``) the clock stands once the lockstep participants that
+acknowledged fall silent for ``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A
+paused rig costs no CPU: the nodes' timers on the simulated clock do not fire, nothing polls (issue 22).
+Before the first acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V
+when its clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
 
 The simulated amplifier has its own dead-man interlock: when no datagram arrived for
 ``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
