@@ -245,8 +245,7 @@ class IdentifierNode(Node):
                              min_free_bytes=int(self.min_free_mb * 1e6))
         self.topic_names = {}
         self.pending_topics = {}  # topic -> (type, fallback QoS): registered on its first message
-        self.topic_lock = threading.Lock()
-        self.record_subs = {}
+        self.topic_lock, self.record_subs = threading.Lock(), {}  # record_subs: topic -> its recording subscription
         for rel, type_name, msg_type, qos in RECORDED:
             full = self.resolve_topic_name(rel)
             self.topic_names[rel] = full
