@@ -45,7 +45,7 @@ __all__ = [
     "TOPIC_DISPLACEMENT_IMPLAUSIBLE", "TOPIC_DISPLACEMENT_PREDICTED",
     "SENSOR_QOS", "COMMAND_QOS", "LATCHED_QOS", "declare_float", "declare_int", "declare_str",
     "declare_bool", "make_range", "make_voltage_state", "stamp_to_s", "stamp_to_ns", "s_to_stamp", "publish_diagnostic",
-    "qos_to_bag",
+    "qos_to_bag", "with_pending",
 ]
 
 TOPIC_VOLTAGE_CMD = "voltage_cmd"
@@ -194,3 +194,26 @@ def qos_to_bag(profile) -> QosProfile:
         "liveliness_lease_duration": duration(profile.liveliness_lease_duration),
         "avoid_ros_namespace_conventions": bool(profile.avoid_ros_namespace_conventions),
     })
+
+
+def with_pending(subscription, first, limit: int = 64):
+    """``first`` (the message a subscription's callback got), then the messages already waiting in
+    ``subscription``'s queue (at most ``limit``), oldest first.
+
+    rclpy's executors deliver one message per subscription per wait round, and a round costs far more
+    than the callback of a recorder: a callback that takes what else is waiting saves the rounds (the
+    mock rig's laser samples arrive two per simulated tick, issue 22). Same messages, same order; the
+    take is the executor's own (``handle.take_message``, rclpy Humble to Kilted). ``subscription``
+    None, or a take that fails: ``first`` only."""
+    yield first
+    if subscription is None:
+        return
+    for _ in range(limit):
+        try:
+            with subscription.handle:
+                taken = subscription.handle.take_message(subscription.msg_type, subscription.raw)
+        except (AttributeError, RuntimeError):  # not this rclpy's API, or the subscription was destroyed
+            return
+        if taken is None:
+            return
+        yield taken[0]

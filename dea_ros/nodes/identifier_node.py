@@ -79,6 +79,7 @@ from .common import (
     declare_int,
     declare_str,
     qos_to_bag,
+    with_pending,
 )
 from .runner import run_nodes
 
@@ -244,7 +245,7 @@ class IdentifierNode(Node):
                              min_free_bytes=int(self.min_free_mb * 1e6))
         self.topic_names = {}
         self.pending_topics = {}  # topic -> (type, fallback QoS): registered on its first message
-        self.topic_lock = threading.Lock()
+        self.topic_lock, self.record_subs = threading.Lock(), {}  # record_subs: topic -> its recording subscription
         for rel, type_name, msg_type, qos in RECORDED:
             full = self.resolve_topic_name(rel)
             self.topic_names[rel] = full
@@ -252,7 +253,7 @@ class IdentifierNode(Node):
             # deep queues: the recorder must not drop a burst (best effort drops only on overflow)
             record_qos = QoSProfile(reliability=qos.reliability, durability=qos.durability,
                                     history=HistoryPolicy.KEEP_LAST, depth=5000)
-            self.create_subscription(msg_type, rel, self._recorder(full), record_qos, raw=True)
+            self.record_subs[full] = self.create_subscription(msg_type, rel, self._recorder(full), record_qos, raw=True)
         self.segment_topic = self.resolve_topic_name("~/segment")
         self.bag.add_topic(self.segment_topic, "std_msgs/msg/String", self.offered_qos(self.segment_topic, LATCHED_QOS))
         self.ready_subs = [
@@ -280,27 +281,31 @@ class IdentifierNode(Node):
             self.bag.add_topic(topic, pending[0], self.offered_qos(topic, pending[1]))
 
     def _recorder(self, topic: str):
-        def record(data: bytes) -> None:
+        def record(data: bytes) -> None:  # and what else waits: one executor round, not one each (issue 22)
+            all(record_one(message) for message in with_pending(self.record_subs.get(topic), data))  # to a False
+
+        def record_one(data: bytes) -> bool:
             bag = self.bag
             if bag is None or bag.closed:
-                return
+                return False
             if topic in self.pending_topics:
                 try:
                     self.register_topic(topic)
                 except BagError as exc:  # adding a channel writes (and flushes) too: a write error
                     self.recording_failed(exc)
-                    return
+                    return False
             now_ns = self.get_clock().now().nanoseconds
             if now_ns == 0:  # simulated time before the first /clock: no valid log time yet
                 self.skipped_before_clock += 1
-                return
+                return True
             try:
                 bag.write_serialized(topic, data, now_ns)
             except BagError as exc:
                 self.recording_failed(exc)
-                return
+                return False
             if topic == self.trigger_topic:
                 self.on_applied_voltage(header_stamp_ns(data))
+            return True
         return record
 
     def on_voltage_seen(self, msg: BatteryState) -> None:

@@ -42,14 +42,15 @@ because the sample went out after the amplifier's update for t_k): the amplifier
 update for t_{k+1}, so a sample-driven controller sees a fixed delay of exactly one tick from
 acquisition to applied voltage (position_controller_node's ``loop_delay_s`` at 1 kHz).
 
-The node sleeps between events: a thread blocks on the amplifier's UDP socket and wakes the executor
-(a guard condition) when a datagram arrives, acknowledgements arrive as messages, and the pacing timer
-runs only while the clock is ahead of ``real_time_factor``. With ``pause_when_idle`` (``dea-ros rig
-demo``) the clock stands once the lockstep participants that acknowledged fall silent for
-``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A paused rig costs no CPU:
-the nodes' timers on the simulated clock do not fire, nothing polls (issue 22). Before the first
-acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V when its
-clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
+The node sleeps between events: a thread blocks on the amplifier's UDP socket and, when a datagram
+arrives, runs the tick itself (publishing from that thread: no executor round per tick, the largest part
+of the mock's CPU per tick, issue 22); acknowledgements arrive as messages on the executor, and the
+pacing timer runs only while the clock is ahead of ``real_time_factor``. Both paths hold one lock. With
+``pause_when_idle`` (``dea-ros rig demo``) the clock stands once the lockstep participants that
+acknowledged fall silent for ``lockstep_timeout_s`` (the protocol ended) until one acknowledges again. A
+paused rig costs no CPU: the nodes' timers on the simulated clock do not fire, nothing polls (issue 22).
+Before the first acknowledgement the clock runs (the nodes starting need it; amplifier_node ramps to 0 V
+when its clock stalls for 2 s while it is active, so a paused clock must not wait for a slow start).
 
 The simulated amplifier has its own dead-man interlock: when no datagram arrived for
 ``amplifier_deadman_s`` of wall time (the amplifier node was killed, hangs, or its host lost
@@ -106,7 +107,6 @@ class MockHardwareNode(Node):
         self.ack_times: dict = {}
         self.acks_received = 0                   # lockstep acknowledgements (all participants)
         self.paused = False                      # pause_when_idle: no participant active, the clock stands
-        self.wake = threading.Event()            # the executor drained the UDP socket (the waiter may wait again)
         if self.publish_clock and self.lockstep:
             for topic in self.lockstep_topics:
                 self.create_subscription(Header, topic, self.on_ack(topic), 10)
@@ -119,6 +119,8 @@ class MockHardwareNode(Node):
         self._create_laser_outputs()
         self._create_clock_and_timers()
         self.published = 0
+        if self.publish_clock:
+            self.waiter.start()  # last: it runs ticks, which need every attribute above
         self.get_logger().info(
             f"mock rig: membrane {params.name}, noise {self.noise_m * 1e6:g} um, amplifier UDP port "
             f"{self.receiver.port}, laser output {self.laser_output}"
@@ -202,17 +204,19 @@ class MockHardwareNode(Node):
             self.clock_pub = self.create_publisher(Clock, "/clock", 10)
             self.wall_t0 = time.monotonic()
             # event driven: a tick advances when the amplifier's datagram arrives (a thread sleeps on the
-            # UDP socket and wakes the executor by a guard condition) and when an acknowledgement arrives;
-            # the pacing timer runs only while the clock is ahead of real_time_factor x the wall clock, a
-            # slow one catches the lockstep timeouts. A paused or waiting rig costs no CPU.
+            # UDP socket and runs the tick itself: no executor round per tick, issue 22) and when an
+            # acknowledgement arrives; the pacing timer runs only while the clock is ahead of
+            # real_time_factor x the wall clock, a slow one catches the lockstep timeouts. A paused or
+            # waiting rig costs no CPU. Every path into the tick holds tick_lock.
+            self.tick_lock = threading.Lock()
             period = min(1.0 / (self.clock_rate_hz * self.real_time_factor), 0.0005)  # catches up when late
             self.timer = self.create_timer(period, self.on_sim_tick, clock=_wall_clock())
             self.timer.cancel()
             self.watch_timer = self.create_timer(min(0.05, self.lockstep_timeout_s / 4), self.on_sim_tick,
                                                  clock=_wall_clock())
-            self.udp_ready = self.create_guard_condition(self.on_sim_tick)
-            self.waiter = threading.Thread(target=self._wait_for_amplifier, daemon=True)
-            self.waiter.start()
+            # the waiter thread re-armed the pacing timer: the executor must wait on it again
+            self.timer_rearmed = self.create_guard_condition(lambda: None)
+            self.waiter = threading.Thread(target=self._wait_for_amplifier, daemon=True)  # started by __init__
         else:
             self.timer = self.create_timer(0.002, self.on_realtime_tick)
         self.mono_to_ros = self.get_clock().now().nanoseconds * 1e-9 - time.monotonic()
@@ -221,12 +225,15 @@ class MockHardwareNode(Node):
 
     # ------------------------------------------------------------------ time
     def _wait_for_amplifier(self) -> None:
-        """Thread: sleep on the amplifier's UDP socket; wake the executor when a datagram is pending."""
+        """Thread: sleep on the amplifier's UDP socket; advance the tick when a datagram is pending."""
         while self.receiver.is_open:
             if self.receiver.wait_readable(0.2):
-                self.wake.clear()
-                self.udp_ready.trigger()
-                self.wake.wait(0.2)  # until the executor drained the socket
+                try:
+                    self.on_sim_tick()
+                except Exception as exc:  # noqa: BLE001 - e.g. the socket closed at shutdown; the executor goes on
+                    if self.receiver.is_open:
+                        self.get_logger().error(f"lockstep tick failed: {exc!r}")
+                        time.sleep(0.01)
 
     def poll_amplifier(self) -> None:
         """Apply the amplifier's outputs received since the last poll, each from its send time.
@@ -237,7 +244,6 @@ class MockHardwareNode(Node):
         previous voltage first, so executor and transport delays do not shift the physics.
         """
         received_all = self.receiver.poll_all()
-        self.wake.set()
         for received in received_all:
             if self.publish_clock:
                 self.amp_time_s = max(self.amp_time_s or received.sent_s, received.sent_s)
@@ -309,10 +315,10 @@ class MockHardwareNode(Node):
         def record(msg: Header) -> None:
             if topic not in self.ack_times:
                 self.get_logger().info(f"lockstep: {topic} acknowledges ticks; the simulated clock waits for it")
-            self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
-            self.acks_received += 1
-            if self.publish_clock:
-                self.on_sim_tick()  # the last acknowledgement starts the next tick without waiting for the timer
+            with self.tick_lock:  # (subscribed with publish_clock only)
+                self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
+                self.acks_received += 1
+                self._advance()  # the last acknowledgement starts the next tick without waiting for the timer
         return record
 
     def _waited_too_long(self, what: str) -> bool:
@@ -342,13 +348,25 @@ class MockHardwareNode(Node):
         return True
 
     def on_sim_tick(self) -> None:
-        """Advance the lockstep tick as far as possible (module docstring: clock, amplifier, samples, acks)."""
+        """Advance the lockstep tick as far as possible (module docstring: clock, amplifier, samples, acks).
+        Called by the executor's timers and by the thread that waits on the amplifier's socket."""
+        with self.tick_lock:
+            self._advance()
+
+    def _rearm_timer(self) -> None:
+        """Start the pacing timer; from the socket's thread, wake the executor to wait on it."""
+        self.timer.reset()
+        if threading.current_thread() is self.waiter:
+            self.timer_rearmed.trigger()
+
+    def _advance(self) -> None:
+        """on_sim_tick's work, ``tick_lock`` held."""
         self.poll_amplifier()
         if not self.samples_out and not self.release_samples():
             return
         if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self.real_time_factor:
             if self.timer.is_canceled():
-                self.timer.reset()
+                self._rearm_timer()
             return  # ahead of the requested speed: the pacing timer calls again
         if not self.timer.is_canceled():
             self.timer.cancel()
@@ -367,7 +385,7 @@ class MockHardwareNode(Node):
         self.publish_clock_time()
         self.release_samples()  # at once when the amplifier is not waited for
         if not (self.lockstep and (self.amp_time_s is not None or self.ack_times)) and self.timer.is_canceled():
-            self.timer.reset()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
+            self._rearm_timer()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
 
     def publish_clock_time(self) -> None:
         """Publish ``/clock`` = the current tick's time."""
@@ -406,7 +424,11 @@ class MockHardwareNode(Node):
             self.emulator.stop()
             self.emulator = None
         if self.receiver.is_open:
-            self.receiver.close()
+            if self.publish_clock:
+                with self.tick_lock:  # not in the middle of the socket thread's tick
+                    self.receiver.close()
+            else:
+                self.receiver.close()
 
     def destroy_node(self):
         self.shutdown_safely()
