@@ -2,10 +2,11 @@
 
 1. Checks before any high voltage: the bag directory is writable and the disk has
    ``min_free_mb``; the protocol's peak voltage is within ``max_voltage_V`` (if set).
-2. Waits (``wait_for_rig_s``) until the amplifier reports an enabled output and displacement
-   flows, then commands ``voltage_cmd`` from the protocol (:mod:`dea_ros.identify.protocols`) at
-   ``command_rate_hz``, marking every segment boundary (``~/segment``, std_msgs/String JSON,
-   and an MCAP metadata record ``dea_ros.experiment`` with the whole schedule).
+2. Waits (``wait_for_rig_s``) until the amplifier reports an enabled output and subscribes to
+   the commands, and displacement flows; then commands ``voltage_cmd`` from the protocol
+   (:mod:`dea_ros.identify.protocols`) at ``command_rate_hz``, marking every segment boundary
+   (``~/segment``, std_msgs/String JSON, and an MCAP metadata record ``dea_ros.experiment`` with
+   the whole schedule).
 3. Records every rig topic (``voltage_cmd``, ``voltage_cmd_batch``, ``voltage``, ``displacement``,
    ``displacement_predicted``) as raw CDR in a rosbag2 MCAP bag (``output_dir/<run>/bag``),
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
@@ -65,22 +66,9 @@ from ..identify.adaptive import plan_second_pass
 from ..identify.bag_experiments import experiment_record, pass_metadata_name
 from ..identify.from_bag import fit_bag, identify_bag
 from ..identify.protocols import ProtocolError, commands_ahead, load_protocol, segment_at
-from .common import (
-    COMMAND_QOS,
-    LATCHED_QOS,
-    SENSOR_QOS,
-    TOPIC_DISPLACEMENT,
-    TOPIC_DISPLACEMENT_PREDICTED,
-    TOPIC_VOLTAGE,
-    TOPIC_VOLTAGE_CMD,
-    TOPIC_VOLTAGE_CMD_BATCH,
-    declare_bool,
-    declare_float,
-    declare_int,
-    declare_str,
-    qos_to_bag,
-    with_pending,
-)
+from .common import (COMMAND_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_DISPLACEMENT, TOPIC_DISPLACEMENT_PREDICTED,
+                     TOPIC_VOLTAGE, TOPIC_VOLTAGE_CMD, TOPIC_VOLTAGE_CMD_BATCH, declare_bool, declare_float,
+                     declare_int, declare_str, qos_to_bag, with_pending)
 from .runner import run_nodes
 
 __all__ = ["IdentifierNode", "main"]
@@ -175,7 +163,7 @@ class IdentifierNode(Node):
         self.fault_handled = False
         self.segment_index = -1
         self.t0_ns: int | None = None
-        self.rig_seen = {"voltage_enabled": False, "displacement": False}
+        self.rig_seen = {"voltage_enabled": False, "displacement": False, "amplifier_listening": False}
         self.wait_started = time.monotonic()
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
@@ -312,6 +300,13 @@ class IdentifierNode(Node):
         if msg.present:
             self.rig_seen["voltage_enabled"] = True
 
+    def amplifier_listening(self) -> bool:
+        """Another node (the amplifier) subscribes to the topic this node commands on: a command sent
+        before that is lost (the first batch; the clock runs free until the lockstep engages)."""
+        topic = (self.batch_pub or self.cmd_pub).topic_name
+        me = (self.get_name(), self.get_namespace())
+        return any((i.node_name, i.node_namespace) != me for i in self.get_subscriptions_info_by_topic(topic))
+
     def on_displacement_seen(self, msg: Range) -> None:
         if math.isfinite(msg.range):  # NaN: a sample laser_sensor_node flagged implausible (REP 117)
             self.rig_seen["displacement"] = True
@@ -406,6 +401,8 @@ class IdentifierNode(Node):
         if self.state == "waiting":
             self.cmd_pub.publish(Float64(data=0.0))
             self.publish_ack(now_ns)
+            if not self.rig_seen["amplifier_listening"]:
+                self.rig_seen["amplifier_listening"] = self.amplifier_listening()
             if all(self.rig_seen.values()):
                 self.state = "running"
                 for sub in self.ready_subs:  # only needed to start: halve the callbacks
