@@ -13,9 +13,10 @@ from rclpy.node import Node  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import BatteryState, Range  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
 
 from dea_ros.bag import BagReader  # noqa: E402
-from dea_ros.nodes.common import SENSOR_QOS, make_range, make_voltage_state  # noqa: E402
+from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, make_range, make_voltage_state  # noqa: E402
 from dea_ros.nodes.identifier_node import IdentifierNode  # noqa: E402
 
 _spec = importlib.util.spec_from_file_location(
@@ -29,10 +30,12 @@ ODD_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=Durabili
 
 
 class TwoSensorRig(Node):
-    """Applied voltage from one publisher; displacement from two, with different QoS."""
+    """Applied voltage from one publisher; displacement from two, with different QoS; it listens to the
+    commands as the amplifier does (identifier_node starts only once someone does)."""
 
     def __init__(self, context, namespace):
         super().__init__("two_sensor_rig", context=context, namespace=namespace)
+        self.create_subscription(Float64, "voltage_cmd", lambda _msg: None, COMMAND_QOS)
         self.v_pub = self.create_publisher(BatteryState, "voltage", SENSOR_QOS)
         self.d_pubs = [self.create_publisher(Range, "displacement", SENSOR_QOS),
                        self.create_publisher(Range, "displacement", ODD_QOS)]
