@@ -281,8 +281,8 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
 
 def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path, label: str = "") -> None:
     f = float(seg["frequency_Hz"])
-    t, d = line.window_of_same_input(seg["measure_start_s"], seg["measure_end_s"],
-                                        seg.get("start_s", seg["measure_start_s"]))
+    start = seg.get("start_s", seg["measure_start_s"])
+    t, d = line.window_of_same_input(seg["measure_start_s"], seg["measure_end_s"], start)
     if t.size < 20:
         raise BagError(f"{path}: sine segment {k} ({f} Hz) has {t.size} samples")
     s = SineSeries(f, t - t[0], line.voltage_at(t), d, source=f"{path}{label} sine {f:g} Hz", voltage_hold="zoh")
