@@ -56,7 +56,7 @@ class ControllerConfig:
     feedforward: bool = True
     feedback: bool = True
     max_sensitivity: float = 1.6              # robustness of the feedback design (Ms)
-    max_noise_gain: float = 0.25              # RMS position error per RMS laser noise the feedback may add
+    max_noise_gain: float = 0.2               # RMS position error per RMS laser noise the feedback may add
     min_move_time_s: float = 0.02             # shortest shaped setpoint move
     feedforward_slew_fraction: float = 0.9    # share of the slew limit a reference may use
     operating_point_m: float | None = None    # gain design point (default: mid-range)

@@ -19,7 +19,10 @@ Safety: each ratio comes with its standard error (the residual's scale, inflated
 per low-pass correlation time); :class:`WindowFit` marks a ratio ``informative`` only when that
 error is below the gate, and the tracker moves only informative ratios, by at most ``max_jump``,
 inside the physical bounds (:meth:`.tracking.ModelTracker.absorb`). Without excitation K is ~0
-and its error is huge: k1 and tau do not move.
+and its error is huge: k1 and tau do not move. The creep time is informative only with k1: tau is
+the decay of the K term, and when its amplitude is undetermined the curvature of the SSE in ln tau
+measures how well some decay fits the noise, not the creep (issue 23, session 11: 8 s into a rest
+at the lower feedback gains of max_noise_gain 0.2 a fit with k1 = -5 +- 0.54 had ln tau +- 0.055).
 """
 from __future__ import annotations
 
@@ -130,7 +133,9 @@ def fit_window(model, scale_Pa: float, tau0_s: float, d_m, u_V, saturated, dt_s:
     std = [math.sqrt(max(c, 0.0) * var) if math.isfinite(c) else math.inf for c in np.diag(cov)]
     std.append(math.sqrt(2.0 * var / curv) if curv > 0.0 else math.inf)   # SSE(z) ~ SSE0 + curv/2 (z - z0)^2
     x = (float(theta[0]), float(theta[1]), float(theta[2]), z)
-    informative = tuple(bool(sd < gate) and math.isfinite(v) for sd, gate, v in zip(std, cfg.max_gate_std, x))
+    informative = [bool(sd < gate) and math.isfinite(v) for sd, gate, v in zip(std, cfg.max_gate_std, x)]
+    informative[3] = informative[3] and informative[2]     # a decay time needs its amplitude: no creep, no tau
+    informative = tuple(informative)
     a = math.exp(-dt_s / tau)
     moves = use | (np.abs(af) >= max_acceleration)
     moves[:int(cfg.burn_in_s / dt_s)] = False

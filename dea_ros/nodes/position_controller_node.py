@@ -122,7 +122,7 @@ class PositionControllerNode(LifecycleNode):
         declare_float(self, "loop_delay_s", 0.001,
                       "laser acquisition -> voltage applied (latency + amplifier update), s", 0.0, 0.05)
         declare_float(self, "max_sensitivity", 1.6, "feedback design: largest |1/(1+L)|", 1.1, 4.0)
-        declare_float(self, "max_noise_gain", 0.25,
+        declare_float(self, "max_noise_gain", 0.2,
                       "feedback design: RMS position error per RMS laser noise", 0.01, 2.0)
         declare_float(self, "min_move_time_s", 0.02, "shortest shaped setpoint move, s", 0.001, 10.0)
         declare_float(self, "feedforward_slew_fraction", 0.9, "share of the slew limit references may use", 0.05, 1.0)
