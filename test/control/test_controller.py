@@ -41,7 +41,7 @@ def test_gains_follow_the_pole_placement_rule(name, unlike, rig_truth):
     assert m["stable"] and m["max_sensitivity"] <= 1.6 + 1e-9 and m["phase_margin_deg"] > 30.0
     assert g.noise_gain <= 0.2 + 1e-9
     # a longer loop delay leaves less room: less damping, and a clear refusal when nothing fits
-    # (at max_noise_gain 0.2 the largest delay admitted is 1.7 ms on the rig, 1.9 ms on unlike; 0.25: 2.0 / 2.3)
+    # (at max_noise_gain 0.2 the largest design delay admitted is 1.7 ms on the rig, 1.9 ms on unlike; 0.25: 2.0 / 2.3)
     g2 = design_gains(inv, d_op, loop_delay_s=1.5e-3)
     assert g2.damping_ratio < z
     with pytest.raises(ValueError, match="loop_delay_s"):
