@@ -37,6 +37,7 @@ KERNEL_SOURCES = (
     "solvers/floquet_kernels.py",
     "solvers/arclength_kernels.py",
     "solvers/sweep_kernels.py",
+    "solvers/integrate_kernels.py",
     "solvers/realised.py",
 )
 
