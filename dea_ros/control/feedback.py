@@ -210,7 +210,8 @@ def design_gains(inverse: ModelInverse, operating_point_m: float, loop_delay_s: 
     if not good:
         raise ValueError(
             f"no damping ratio keeps the loop stable with max sensitivity <= {max_sensitivity} and noise gain "
-            f"<= {max_noise_gain} for a loop delay of {loop_delay_s * 1e3:.2f} ms; reduce loop_delay_s"
+            f"<= {max_noise_gain} for a loop delay of {loop_delay_s * 1e3:.2f} ms; reduce loop_delay_s, or raise "
+            f"max_noise_gain (0.25 admits ~0.3 ms more delay, with 25 % more laser noise on the mass)"
         )
     i = good[-1]
     zeta, m = float(grid[i]), results[i][1]
