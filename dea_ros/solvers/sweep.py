@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from ..errors import ContinuationError, SteadyStateError
+from ..errors import ContinuationError, HarmonicBalanceError, SteadyStateError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from .branch_analysis import END_TOL, LOCATE_STEP_FACTOR, analyse_branch, make_branch
@@ -139,7 +139,15 @@ def _trace_primary(params, setup, periodic_input, freqs, n_harmonics, use_symmet
     requested frequency the first grid point: (tracer, trace, period divisor, ln omega of the grid)."""
     first_input = periodic_input.with_frequency(freqs[0])
     divisor, m = response_layout(first_input, n_harmonics, use_symmetry)
-    start = solve_native(params, first_input, n_harmonics, use_symmetry=use_symmetry, stability=False, tol=tol)
+    try:
+        start = solve_native(params, first_input, n_harmonics, use_symmetry=use_symmetry, stability=False, tol=tol)
+    except HarmonicBalanceError:
+        # the lowest frequency next to a fold (a second pass's sines near resonance): the Jacobian is
+        # ill-conditioned there, the residual reaches the floating-point floor while the Newton step stays
+        # above tol; a step below 1e-8 (scaled) is still far more accurate than any measured RMS value
+        # (as identify.frequency_points.point_solution); the arclength tracer is not hampered by the fold
+        start = solve_native(params, first_input, n_harmonics, use_symmetry=use_symmetry, stability=False,
+                             tol=max(tol, 1e-8))
     p0 = math.log(first_input.omega * divisor)
     p_grid = np.log(2.0 * np.pi * freqs * divisor)
     dp_grid = float(np.min(np.diff(p_grid))) if freqs.size > 1 else 0.1
