@@ -270,7 +270,9 @@ class IdentifierNode(Node):
 
     def _recorder(self, topic: str):
         def record(data: bytes) -> None:  # and what else waits: one executor round, not one each (issue 22)
-            all(record_one(message) for message in with_pending(self.record_subs.get(topic), data))  # to a False
+            for message in with_pending(self.record_subs.get(topic), data):
+                if not record_one(message):  # the bag is closed or failed: stop taking
+                    break
 
         def record_one(data: bytes) -> bool:
             bag = self.bag
