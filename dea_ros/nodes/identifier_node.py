@@ -394,6 +394,41 @@ class IdentifierNode(Node):
             self.last_trigger_wall_s = time.monotonic()
             self.on_tick()
 
+    def wait_for_rig(self, now_ns: int) -> None:
+        """A tick before the protocol: 0 V, the tick acknowledged; once the rig is ready, the protocol runs
+        from the next tick (:meth:`start_protocol`); a rig not ready in ``wait_for_rig_s`` fails the run."""
+        self.cmd_pub.publish(Float64(data=0.0))
+        self.publish_ack(now_ns)
+        if not self.rig_seen["amplifier_listening"]:
+            self.rig_seen["amplifier_listening"] = self.amplifier_listening()
+        if all(self.rig_seen.values()):
+            self.state, self.t0_ns = "running", None
+            for sub in self.ready_subs:  # only needed to start: halve the callbacks
+                self.destroy_subscription(sub)
+            self.ready_subs = []
+            self.last_trigger_wall_s = time.monotonic()  # (no restart tick from a clock that may be behind)
+            self.get_logger().info("rig ready")
+        elif time.monotonic() - self.wait_started > self.wait_for_rig_s:
+            missing = [k for k, v in self.rig_seen.items() if not v]
+            self.finish_recording(aborted=True)
+            self.fail(f"rig not ready after {self.wait_for_rig_s:g} s (missing: {missing}); is the amplifier "
+                      "active and the sensor publishing? nothing was commanded")
+
+    def start_protocol(self, now_ns: int) -> bool:
+        """The protocol's time origin: the first tick after the rig was found ready, not the tick that found
+        it. That tick may be the wall-clock wait tick (``on_wait_tick``), which an executor round runs
+        before the round's /clock message: after a stall of the node (a loaded machine) its clock is
+        behind by the stall, and a protocol started from it ran ahead by as much from the next, current
+        amplifier output (CI: the first two static levels skipped). True: recorded and started."""
+        self.t0_ns = now_ns
+        try:
+            self.record_experiment_metadata(0, aborted=False)
+        except BagError as exc:
+            self.recording_failed(exc)
+            return False
+        self.get_logger().info(f"protocol started at simulated t = {now_ns * 1e-9:.6f} s")
+        return True
+
     def on_tick(self, now_ns: int | None = None) -> None:
         """One command. ``now_ns``: the tick's time (default: the node's clock)."""
         now_ns = self.now_ns() if now_ns is None else int(now_ns)
@@ -401,31 +436,11 @@ class IdentifierNode(Node):
             self.state = "waiting"
             self.wait_started = time.monotonic()
         if self.state == "waiting":
-            self.cmd_pub.publish(Float64(data=0.0))
-            self.publish_ack(now_ns)
-            if not self.rig_seen["amplifier_listening"]:
-                self.rig_seen["amplifier_listening"] = self.amplifier_listening()
-            if all(self.rig_seen.values()):
-                self.state = "running"
-                for sub in self.ready_subs:  # only needed to start: halve the callbacks
-                    self.destroy_subscription(sub)
-                self.ready_subs = []
-                self.t0_ns = now_ns
-                try:
-                    self.record_experiment_metadata(0, aborted=False)
-                except BagError as exc:
-                    self.recording_failed(exc)
-                    return
-                self.get_logger().info("rig ready: protocol started")
-            elif time.monotonic() - self.wait_started > self.wait_for_rig_s:
-                missing = [k for k, v in self.rig_seen.items() if not v]
-                self.finish_recording(aborted=True)
-                self.fail(f"rig not ready after {self.wait_for_rig_s:g} s (missing: {missing}); is the amplifier "
-                          "active and the sensor publishing? nothing was commanded")
+            self.wait_for_rig(now_ns)
             return
         if self.state == "planning" and not self.on_planning_tick(now_ns):
             return
-        if self.state != "running":
+        if self.state != "running" or (self.t0_ns is None and not self.start_protocol(now_ns)):
             return
         t = (now_ns - self.t0_ns) * 1e-9
         k = segment_at(self.segments, t, max(self.segment_index, 0))

@@ -277,3 +277,21 @@ def test_disk_full_while_recording_commands_0V_reports_and_keeps_the_bag(ros_con
                           capture_output=True, text=True, timeout=120)
     assert info.returncode == 0, info.stderr
     assert "Traceback" not in info.stderr
+
+
+def test_the_protocol_starts_at_the_tick_after_the_rig_was_found_ready(ros_context, tmp_path):
+    """The tick that finds the rig ready may carry a clock that is behind (the wall-clock wait tick runs
+    before its executor round's /clock message; CI: after a stall the protocol started ahead by the
+    stall and skipped its first two segments): the protocol's time origin is the next tick's."""
+    node = make_identifier(ros_context, tmp_path)
+    try:
+        node.rig_seen = dict.fromkeys(node.rig_seen, True)
+        behind_ns, current_ns = 1_000_000_000_000, 1_000_400_000_000  # the clock 0.4 s behind the rig
+        node.on_tick(behind_ns)
+        assert node.state == "running" and node.t0_ns is None
+        node.on_tick(current_ns)
+        assert node.t0_ns == current_ns and node.segment_index == 0
+        node.on_tick(current_ns + 5_000_000)
+        assert node.segment_index == 0
+    finally:
+        node.destroy_node()
