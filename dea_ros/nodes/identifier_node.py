@@ -33,11 +33,9 @@ identifier once per K ticks instead of every tick; the applied voltage is the sa
 (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
 
-A recording fault (disk full, file size limit, I/O error, permission lost: any write error of
-the bag) stops the experiment: 0 V is commanded at once, the protocol is aborted, the bag is
-finished where it lies with everything written before the fault (no second copy is needed, so
-this works on a full disk; see :func:`dea_ros.bag.recover_bag` ``in_place``), ``~/status``
-reports ``state: error`` with the cause, and the node exits with code 1.
+A recording fault (any write error of the bag: disk full, I/O error, ...) stops the experiment: 0 V at
+once, the protocol aborted, the bag finished in place with everything written before the fault (works
+on a full disk: :func:`dea_ros.bag.recover_bag` ``in_place``), ``state: error`` with the cause, exit code 1.
 """
 from __future__ import annotations
 
@@ -299,8 +297,7 @@ class IdentifierNode(Node):
         return record
 
     def on_voltage_seen(self, msg: BatteryState) -> None:
-        if msg.present:
-            self.rig_seen["voltage_enabled"] = True
+        self.rig_seen["voltage_enabled"] |= bool(msg.present)
 
     def amplifier_listening(self) -> bool:
         """Another node (the amplifier) subscribes to the topic this node commands on: a command sent
@@ -358,13 +355,10 @@ class IdentifierNode(Node):
     def on_applied_voltage(self, stamp_ns: int) -> None:
         """``command_trigger: applied_voltage``: one tick per amplifier update (its output's stamp, ns).
 
-        An output older than the clock by half an update or more is a backlog (the clock ran while this
-        node was busy, e.g. starting before the rig's lockstep engaged): a command computed from it would
-        be for an update already done, and amplifier_node's acknowledgement of it (stamped with its own,
-        current clock) would let the mock rig advance with this node still behind, so that the protocol
-        runs late by the backlog or its first batch is refused as stale. Such outputs are recorded but
-        trigger nothing; the current one does (the /clock subscription keeps only the newest message, so
-        the node's clock is never part of the backlog)."""
+        An output older than the clock by half an update or more is a backlog (the clock ran while this node
+        was busy): a command from it would be for an update already done, and its acknowledgement would let
+        the mock rig advance with this node behind (the protocol late, or its first batch refused as stale).
+        Such outputs are recorded but trigger nothing (/clock keeps only its newest message)."""
         now_ns = self.now_ns()
         if stamp_ns <= self.last_trigger_ns or now_ns <= 0:  # (not before the first /clock)
             return
@@ -376,11 +370,9 @@ class IdentifierNode(Node):
         self.on_tick(stamp_ns)
 
     def on_wait_tick(self) -> None:
-        """``command_trigger: applied_voltage``, every 0.1 s of wall time: the wait for the rig times out
-        without amplifier output; and while running, a tick from the clock when no amplifier output
-        triggered one for ``TRIGGER_SILENCE_S``: a command (batch) that did not reach the amplifier (or
-        was refused) leaves the mock rig's lockstep without an acknowledgement, and a rig that pauses
-        when idle would wait for it for good. The command for the update after the current one restarts it."""
+        """``command_trigger: applied_voltage``, every 0.1 s of wall time: the wait for the rig (times out
+        without amplifier output); running, a tick from the clock after ``TRIGGER_SILENCE_S`` without one
+        (a lost or refused command leaves a lockstep rig that pauses when idle waiting for good)."""
         if self.now_ns() <= 0:
             return
         if self.state in ("starting", "waiting"):
@@ -395,8 +387,7 @@ class IdentifierNode(Node):
             self.on_tick()
 
     def wait_for_rig(self, now_ns: int) -> None:
-        """A tick before the protocol: 0 V, the tick acknowledged; once the rig is ready, the protocol runs
-        from the next tick (:meth:`start_protocol`); a rig not ready in ``wait_for_rig_s`` fails the run."""
+        """A tick before the protocol: 0 V, acknowledged; the rig ready: the protocol runs from the next tick."""
         self.cmd_pub.publish(Float64(data=0.0))
         self.publish_ack(now_ns)
         if not self.rig_seen["amplifier_listening"]:
@@ -415,11 +406,8 @@ class IdentifierNode(Node):
                       "active and the sensor publishing? nothing was commanded")
 
     def start_protocol(self, now_ns: int) -> bool:
-        """The protocol's time origin: the first tick after the rig was found ready, not the tick that found
-        it. That tick may be the wall-clock wait tick (``on_wait_tick``), which an executor round runs
-        before the round's /clock message: after a stall of the node (a loaded machine) its clock is
-        behind by the stall, and a protocol started from it ran ahead by as much from the next, current
-        amplifier output (CI: the first two static levels skipped). True: recorded and started."""
+        """The protocol's time origin: the tick after the one that found the rig ready (that may be the wait
+        tick, run before its round's /clock: after a stall its clock is behind and the protocol ran ahead)."""
         self.t0_ns = now_ns
         try:
             self.record_experiment_metadata(0, aborted=False)
@@ -668,8 +656,7 @@ class IdentifierNode(Node):
         total = self.segments[-1].end_s if self.segments else 0.0
         elapsed = (self.now_ns() - self.t0_ns) * 1e-9 if (self.t0_ns and self.state == "running") else None
         return {"state": self.state, "pass": self.pass_number, "segment": self.segment_index + 1,
-                "segments": len(self.segments),
-                "elapsed_s": elapsed, "duration_s": total,
+                "segments": len(self.segments), "elapsed_s": elapsed, "duration_s": total,
                 "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
                 "bag": str(self.bag_dir), "error": self.error,
                 "outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts}
