@@ -49,7 +49,8 @@ def identify_once(checkout: Path, python: str | None, bag: Path, out: Path) -> d
     if proc.returncode != 0:
         raise SystemExit(f"{checkout}: identify failed:\n{proc.stderr[-2000:]}")
     summary = json.loads(proc.stdout)
-    stages = json.loads((out / "report" / "result.json").read_text()).get("timings", {})
+    result = json.loads((out / "report" / "result.json").read_text())
+    stages = result.get("timings_s") or result.get("timings") or {}
     row = {"wall_s": wall, "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
            "load1": load, **{k: float(v) for k, v in summary["timings_s"].items()}}
     row.update({k: float(stages[k]) for k in STAGES if k in stages})
