@@ -271,6 +271,8 @@ class SampledPeriodic(PeriodicInput):
     voltage_V: np.ndarray
     frequency_Hz: float
     _coeffs: np.ndarray = field(default=None, repr=False, compare=False)
+    #: u2_half_periodic per number of samples (the waveform is fixed: a solver asks for every solve)
+    _u2_half: dict = field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         u = check_voltage(self.voltage_V, "voltage_V").reshape(-1)
@@ -280,6 +282,14 @@ class SampledPeriodic(PeriodicInput):
             raise ValueError(f"frequency_Hz: must be > 0, got {self.frequency_Hz}")
         object.__setattr__(self, "voltage_V", u)
         object.__setattr__(self, "_coeffs", np.fft.rfft(u) / u.size)
+        object.__setattr__(self, "_u2_half", {})
+
+    def u2_half_periodic(self, samples: int = 64) -> bool:
+        """As :meth:`PeriodicInput.u2_half_periodic`, evaluated once per ``samples`` (the waveform is fixed)."""
+        hit = self._u2_half.get(samples)
+        if hit is None:
+            hit = self._u2_half[samples] = super().u2_half_periodic(samples)
+        return hit
 
     def at_phase(self, theta):
         theta = np.asarray(theta, dtype=float)

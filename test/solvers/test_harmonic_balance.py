@@ -100,6 +100,19 @@ def test_sampled_period_input_equals_the_sine(a2):
     assert a.displacement_rms() == pytest.approx(b.displacement_rms(), rel=1e-9)
 
 
+def test_sampled_period_symmetry_is_computed_once_and_right():
+    """u2_half_periodic of a sampled period is cached per instance (asked for at every solve): the same
+    answer as the generic test, for a symmetric sine, one with an offset, and a new frequency's copy."""
+    theta = 2 * np.pi * np.arange(96) / 96
+    sym = SampledPeriodic(1500.0 * np.sin(theta) + 40.0 * np.sin(3 * theta), 7.0)
+    offset = SampledPeriodic(200.0 + 1500.0 * np.sin(theta), 7.0)
+    for inp, expected in ((sym, True), (offset, False), (offset.with_frequency(9.0), False)):
+        generic = super(SampledPeriodic, inp).u2_half_periodic()
+        assert generic is expected
+        assert inp.u2_half_periodic() is expected and inp.u2_half_periodic() is expected
+        assert inp.u2_half_periodic(samples=31) is expected
+
+
 def test_floquet_multipliers_converge_and_match_linear_limit(a2):
     """Tiny amplitude: multipliers -> eigenvalues of exp(A T) of the linearisation."""
     u0, f = 1500.0, 3.0
