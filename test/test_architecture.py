@@ -104,6 +104,7 @@ PACKAGE_DIR = Path(dea_ros.__file__).resolve().parent
 #: subpackage -> the subpackages it may import ("" is dea_ros/__init__: the version)
 ALLOWED_IMPORTS = {
     "errors": set(),
+    "blas_threads": set(),
     "": set(),
     "model": {"errors"},
     "solvers": {"errors", "model"},
@@ -111,10 +112,12 @@ ALLOWED_IMPORTS = {
     "bag": {"errors", ""},
     "sim": {"errors", "model", "solvers", "hardware"},
     "identify": {"errors", "model", "solvers", "bag"},
-    "study": {"errors", "model", "solvers"},
+    "study": {"errors", "blas_threads", "model", "solvers"},
     "control": {"errors", "model", "solvers", "hardware", "sim"},
-    "nodes": {"errors", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study", "control"},
-    "cli": {"errors", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study", "control", "nodes"},
+    "nodes": {"errors", "blas_threads", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study",
+              "control"},
+    "cli": {"errors", "blas_threads", "", "model", "solvers", "hardware", "bag", "sim", "identify", "study",
+            "control", "nodes"},
 }
 ROS_MODULES = {"rclpy", "std_msgs", "sensor_msgs", "trajectory_msgs", "diagnostic_msgs", "lifecycle_msgs",
                "rosgraph_msgs", "rcl_interfaces", "std_srvs", "builtin_interfaces", "rosidl_runtime_py"}

@@ -14,18 +14,12 @@
 
 Each command module has ``register(subparsers)``.
 
-One BLAS thread per process unless the user's environment says otherwise (``OPENBLAS_NUM_THREADS``,
-``OMP_NUM_THREADS``, ``MKL_NUM_THREADS``; set here, before numpy is first imported, and inherited by
-the rig's node processes): the identification's linear algebra is small (least-squares Fourier fits
-of a few thousand samples, collocation Jacobians of ~100 rows), and a BLAS spreading each call over
-all cores spin-waits against the other processes of a busy machine. On the 2-core test machine at
-load 3-9 that made ``dea-ros identify`` of the demo's bag 5-20x slower (docs/benchmarks.md, issue 22
-session 12); the results differ only in floating-point round-off.
+One BLAS thread per process unless the environment says otherwise (:mod:`dea_ros.blas_threads`),
+set before numpy is first imported and inherited by the rig's node processes.
 """
-import os
+from ..blas_threads import use_one_blas_thread
 
-for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
+use_one_blas_thread()
 
 from .program import COMMAND_MODULES, build_parser, main  # noqa: E402 - after the BLAS threads are set
 

@@ -13,7 +13,12 @@ what they compute is a call into the core (:mod:`dea_ros.control`, :mod:`dea_ros
 * :mod:`.replay_node` -- ``dea-ros replay``: a bag republished with its timing.
 
 :mod:`.common` holds the topic names, QoS profiles and message helpers, :mod:`.runner` the
-spinning and signal handling. Nothing is imported here: importing a node module imports rclpy.
+spinning and signal handling. Nothing else is imported here (importing a node module imports
+rclpy): one BLAS thread per process unless the environment says otherwise, set before numpy is
+imported (:mod:`dea_ros.blas_threads`; the identification in identifier_node, issue 22).
 """
+from ..blas_threads import use_one_blas_thread
+
+use_one_blas_thread()
 
 __all__: list = []

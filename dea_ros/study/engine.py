@@ -21,12 +21,12 @@ from __future__ import annotations
 import os
 import sys
 import time
+from ..blas_threads import ONE_BLAS_THREAD, use_one_blas_thread
 from ..errors import EngineError
 
 __all__ = ["Engine", "EngineError", "ENGINE_KINDS", "Progress", "dask_available"]
 
 ENGINE_KINDS = ("auto", "serial", "processes", "dask")
-_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 _NO_WORKER_PROFILER = {"distributed.worker.profile.enabled": False, "distributed.worker.profile.interval": "1s",
                        "distributed.worker.profile.cycle": "10s"}
 
@@ -48,8 +48,7 @@ def _need_dask(why: str):
 
 
 def _init_worker():
-    for k, v in _ONE_THREAD.items():
-        os.environ.setdefault(k, v)
+    use_one_blas_thread()
 
 
 class Engine:
@@ -93,8 +92,7 @@ class Engine:
         if self.kind == "processes":
             from concurrent.futures import ProcessPoolExecutor
 
-            for k, v in _ONE_THREAD.items():   # inherited by the workers at their start
-                os.environ.setdefault(k, v)
+            use_one_blas_thread()   # inherited by the workers at their start
             self._pool = ProcessPoolExecutor(max_workers=self.workers, initializer=_init_worker)
         elif self.kind == "dask":
             from distributed import Client, LocalCluster
@@ -113,7 +111,7 @@ class Engine:
                 # start without it (older distributed versions, without the switch: sampled each 1 s).
                 with dask.config.set(_NO_WORKER_PROFILER):
                     self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                                 dashboard_address=None, env=dict(_ONE_THREAD))
+                                                 dashboard_address=None, env=dict(ONE_BLAS_THREAD))
                 self._client = Client(self._cluster)
         return self
 
