@@ -105,10 +105,8 @@ class IdentifierNode(Node):
         self.create_timer(0.5, self.publish_status)
         if self.progress_period_s > 0:  # wall clock: a line a person (or dea-ros rig demo) can follow
             self.create_timer(self.progress_period_s, self.log_progress, clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.get_logger().info(
-            f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
-            f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}"
-        )
+        self.get_logger().info(f"protocol '{self.protocol.name}': {len(self.segments)} segments, "
+                               f"{self.segments[-1].end_s:.1f} s; recording to {self.bag_dir}")
 
     # ------------------------------------------------------------------ start-up
     def _declare_parameters(self) -> str:
