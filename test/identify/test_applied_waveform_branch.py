@@ -6,9 +6,10 @@ held data of the coverage family (F12, F13, 17 frequencies) the sine's upper bra
 record while the held waveform's had folded below it, and the joint refinement failed at its start
 ("harmonic balance failed ... no solution continued past ... (a fold?)"; the two-stage result was
 reported). Here F07 (bench_coverage_family; softening, its upper branch folds at 12.0 Hz for 2.5 kV)
-with a record at 12.0 Hz on the sine's upper branch (1.73 mm) whose applied waveform is a sine 2 % higher
-(from the upper branch's state its solution is the lower branch's, 0.36 mm): every record the classification fits must solve with its applied waveform, as the
-refinement solves it, on the branch the classification chose.
+with a record at 12.0 Hz on the sine's upper branch (1.73 mm) whose applied waveform is a sine 2 %
+higher (from the upper branch's state its solution is the lower branch's, 0.36 mm): every record the
+classification fits must solve with its applied waveform, as the refinement solves it, on the branch
+the classification chose (before: fitted with the sine's branch, solved on the lower one). ~3 s.
 """
 from __future__ import annotations
 
