@@ -18,11 +18,14 @@ record is left out of this round like one beyond a fold.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ..errors import HarmonicBalanceError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
+from ..solvers.collocation import periodic_interpolation_matrix, response_layout
 from ..solvers.sweep import frequency_sweep
 from ..solvers.sweep_results import PRIMARY
 from ..solvers.inputs import SinePeriodic
@@ -31,7 +34,7 @@ from .frequency_points import FrequencyPoint, point_solution
 
 __all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "classification_kinds",
            "leave_out_unreproduced",
-           "follow_applied_waveforms", "sweep_for"]
+           "follow_applied_waveforms", "guess_for_waveform", "sweep_for"]
 
 
 def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
@@ -169,16 +172,34 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
 APPLIED_BRANCH_TOLERANCE = 0.1
 
 
+def guess_for_waveform(state: np.ndarray, waveform, n_harmonics: int, samples: int = 256) -> np.ndarray:
+    """The nominal sine's T/2 orbit ``state`` (3, M) as a seed for ``waveform`` (an applied periodic input):
+    moved to the waveform's phase (a record starts at its own phase: the 2f component of u^2 locates it)
+    and laid out over the waveform's response period (the full period T when its u^2 is not T/2-periodic).
+    Without it Newton started a half-cycle off next to a fold and failed (F13 of the coverage family,
+    7.944 Hz: phase 1.13 rad; aligned it solves on the record's branch, 1011.10 um for 1011.09 measured)."""
+    theta = 2.0 * np.pi * np.arange(samples) / samples
+    c2 = np.sum(np.asarray(waveform.at_phase(theta), float) ** 2 * np.exp(-2j * theta))
+    shift = 0.5 * float(np.angle(-c2))     # u(theta) ~ U sin(theta + shift): sin^2's 2f coefficient is -1/4
+    divisor, m = response_layout(waveform, n_harmonics, True)
+    phases = 2.0 * np.pi * np.arange(m) / (m * divisor)           # over T
+    state = np.asarray(state, float)
+    return state @ periodic_interpolation_matrix(state.shape[1], np.mod(2.0 * (phases + shift), 2.0 * np.pi)).T
+
+
 def follow_applied_waveforms(entries: list, params: MembraneParameters, experiments: ExperimentSet,
                              n_harmonics: int) -> None:
     """Each fitted record that has an applied waveform solved with it as the fit solves it
-    (:func:`~dea_ros.identify.frequency_points.point_solution` from the chosen branch's state): the
-    solution becomes the record's ``guess``. Where it does not solve (the branch of the applied waveform
-    folds below the record's frequency) or lands on another branch (d_rms off by more than
+    (:func:`~dea_ros.identify.frequency_points.point_solution` from the chosen branch's state, moved to the
+    waveform's phase and period by :func:`guess_for_waveform`): the solution becomes the record's
+    ``guess``. Where it does not solve (the branch of the applied waveform folds below the record's
+    frequency) or lands on another branch (d_rms off by more than
     :data:`APPLIED_BRANCH_TOLERANCE`), the record is left out of this round with the reason."""
     for e, pt in zip(entries, _points(entries, experiments)):
         if pt is None or pt.periodic_input is None:
             continue
+        if pt.kind == "periodic" and pt.guess is not None:
+            pt = dataclasses.replace(pt, guess=guess_for_waveform(pt.guess, pt.periodic_input, n_harmonics))
         p = params.replace(mass_kg=pt.mass_kg)
         try:
             sol = point_solution(p, pt, n_harmonics)
