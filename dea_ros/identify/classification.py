@@ -6,25 +6,35 @@ and what the model at the current parameters realises there
 (:func:`~dea_ros.solvers.sweep.frequency_sweep`: the branch a slow upward sweep is on, the
 period-doubled branch in a period-doubling band, quasi-periodic in a torus band; with coexisting
 responses the one nearest the measured RMS). Each record is then fitted with the matching periodic
-solution (the T/2 orbit or a period-doubled one) or left out, with the reason.
+solution (the T/2 orbit or a period-doubled one) or left out, with the reason. The sweep is of the
+nominal sine; the fit solves each record with its applied waveform (a rig's record: the amplifier's
+held samples), so the chosen branch is followed to that waveform (:func:`follow_applied_waveforms`):
+next to a fold the held input's branch can end below the record's frequency while the sine's still
+reaches it (F12, F13 of the coverage family: the joint refinement failed at its start), and such a
+record is left out of this round like one beyond a fold.
 
 :func:`classify_records` returns one dict per record (serialised in result.json without ``guess``);
 :func:`fitted_points` turns the fitted ones into the frequency points of the joint refinement.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from ..errors import HarmonicBalanceError
+from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
+from ..solvers.collocation import periodic_interpolation_matrix, response_layout
 from ..solvers.sweep import frequency_sweep
 from ..solvers.sweep_results import PRIMARY
 from ..solvers.inputs import SinePeriodic
 from .experiments import ExperimentSet
-from .frequency_points import FrequencyPoint
+from .frequency_points import FrequencyPoint, point_solution
 
 __all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "classification_kinds",
            "leave_out_unreproduced",
-           "sweep_for"]
+           "follow_applied_waveforms", "guess_for_waveform", "sweep_for"]
 
 
 def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
@@ -152,8 +162,61 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
             by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
             for k in sel:
                 out.append(_classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m))
+    follow_applied_waveforms(out, params, experiments, n_harmonics)
     leave_out_unreproduced(out)
     return out
+
+
+#: A fitted record whose response to its applied waveform differs from the chosen branch's response to
+#: the nominal sine by more than this share (d_rms) has been solved on another branch.
+APPLIED_BRANCH_TOLERANCE = 0.1
+
+
+def guess_for_waveform(state: np.ndarray, waveform, n_harmonics: int, samples: int = 256) -> np.ndarray:
+    """The nominal sine's T/2 orbit ``state`` (3, M) as a seed for ``waveform`` (an applied periodic input):
+    moved to the waveform's phase (a record starts at its own phase: the 2f component of u^2 locates it)
+    and laid out over the waveform's response period (the full period T when its u^2 is not T/2-periodic).
+    Without it Newton started a half-cycle off next to a fold and failed (F13 of the coverage family,
+    7.944 Hz: phase 1.13 rad; aligned it solves on the record's branch, 1011.10 um for 1011.09 measured)."""
+    theta = 2.0 * np.pi * np.arange(samples) / samples
+    c2 = np.sum(np.asarray(waveform.at_phase(theta), float) ** 2 * np.exp(-2j * theta))
+    shift = 0.5 * float(np.angle(-c2))     # u(theta) ~ U sin(theta + shift): sin^2's 2f coefficient is -1/4
+    divisor, m = response_layout(waveform, n_harmonics, True)
+    phases = 2.0 * np.pi * np.arange(m) / (m * divisor)           # over T
+    state = np.asarray(state, float)
+    return state @ periodic_interpolation_matrix(state.shape[1], np.mod(2.0 * (phases + shift), 2.0 * np.pi)).T
+
+
+def follow_applied_waveforms(entries: list, params: MembraneParameters, experiments: ExperimentSet,
+                             n_harmonics: int) -> None:
+    """Each fitted record that has an applied waveform solved with it as the fit solves it
+    (:func:`~dea_ros.identify.frequency_points.point_solution` from the chosen branch's state, moved to the
+    waveform's phase and period by :func:`guess_for_waveform`): the solution becomes the record's
+    ``guess``. Where it does not solve (the branch of the applied waveform folds below the record's
+    frequency) or lands on another branch (d_rms off by more than
+    :data:`APPLIED_BRANCH_TOLERANCE`), the record is left out of this round with the reason."""
+    for e, pt in zip(entries, _points(entries, experiments)):
+        if pt is None or pt.periodic_input is None:
+            continue
+        if pt.kind == "periodic" and pt.guess is not None:
+            pt = dataclasses.replace(pt, guess=guess_for_waveform(pt.guess, pt.periodic_input, n_harmonics))
+        p = params.replace(mass_kg=pt.mass_kg)
+        try:
+            sol = point_solution(p, pt, n_harmonics)
+            rms = sol.displacement_rms(float(static_equilibrium(p, 0.0).displacement_m))
+        except HarmonicBalanceError as exc:
+            why = f"it does not solve ({str(exc)[:120]})"
+        else:
+            if abs(rms / e["fitted_model_rms_m"] - 1.0) <= APPLIED_BRANCH_TOLERANCE:
+                e["guess"] = sol.state
+                continue
+            why = f"it lands on another response ({rms * 1e6:.4g} um)"
+        e["used"] = "left out"
+        e["reason"] = (f"the model's {branch_kind(e['branch'])} at {e['fitted_model_rms_m'] * 1e6:.4g} um (nominal "
+                       f"sine) followed to the record's applied waveform: {why}; next to a fold, beyond it for "
+                       "that waveform at the current parameters; classified again after the next round of the fit")
+        for key in ("guess", "branch", "coexisting", "note"):
+            e.pop(key, None)
 
 
 #: A fitted record whose measured RMS and the nearest model response of its kind differ by more than
@@ -191,11 +254,12 @@ def leave_out_unreproduced(entries: list) -> None:
             e.pop(key, None)
 
 
-def fitted_points(classification: list, experiments: ExperimentSet) -> list:
-    """FrequencyPoints of the classified records that are fitted (with their kind and seed)."""
+def _points(classification: list, experiments: ExperimentSet) -> list:
+    """The FrequencyPoint of each classified record (None where it is left out)."""
     pts = []
     for c in classification:
         if c["used"] == "left out":
+            pts.append(None)
             continue
         sine = [s for s in experiments.sines if s.source == c["source"]][0]
         k = c["index"]
@@ -203,7 +267,12 @@ def fitted_points(classification: list, experiments: ExperimentSet) -> list:
             c["frequency_Hz"], c["amplitude_V"], c["measured_rms_m"], sine.mass_kg, sine.source,
             None if sine.d_rms_std_m is None else float(sine.d_rms_std_m[k]),
             sine.inputs[k] if sine.inputs else None, kind=c["used"], guess=c.get("guess")))
-    return sorted(pts, key=lambda p: p.frequency_Hz)
+    return pts
+
+
+def fitted_points(classification: list, experiments: ExperimentSet) -> list:
+    """FrequencyPoints of the classified records that are fitted (with their kind and seed)."""
+    return sorted([p for p in _points(classification, experiments) if p is not None], key=lambda p: p.frequency_Hz)
 
 
 def classification_kinds(classification: list) -> list:
