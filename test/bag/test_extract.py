@@ -9,7 +9,8 @@ from dea_ros.bag import BagError, BagWriter
 from dea_ros.identify.bag_experiments import EXPERIMENT_METADATA, BagTopics, experiments_from_bag
 from dea_ros.identify.protocols import load_protocol
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers import SampledVoltage, SinePeriodic, simulate, solve_native
+from dea_ros.solvers import SinePeriodic, solve_native
+from dea_ros.solvers.integrate import simulate_held
 from fakes.recorded_bag import T0_NS, write_rig_bag
 
 
@@ -23,11 +24,12 @@ def recorded(tmp_path_factory):
     seg_idx = np.searchsorted([s.end_s for s in segs], tv, side="right").clip(0, len(segs) - 1)
     uv = np.array([segs[k].voltage_at(t) for k, t in zip(seg_idx, tv)])
     td = np.arange(0.0, duration, 1e-3)
-    # linear hold: a ZOH input restarts the adaptive integrator at every change (32k times); the
-    # difference is far below the tolerances checked here
-    resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="linear"), duration, t_eval=td)
+    # the ZOH input integrated hold by hold (the compiled kernel of the mock's truth), each 2 ms hold
+    # as two 1 ms holds of the same voltage so that the states fall on the laser's samples
+    held = simulate_held(preset("A2"), np.repeat(uv, 2), 1e-3)
+    assert td.size <= held.time_s.size - 1 and np.allclose(held.time_s[:td.size], td, rtol=0.0, atol=1e-9)
     rng = np.random.default_rng(3)
-    d = resp.displacement_m + rng.normal(0, 1e-6, td.size)
+    d = held.displacement_m[:td.size] + rng.normal(0, 1e-6, td.size)
     d[::97] = np.nan  # samples laser_sensor_node flagged implausible (REP 117 invalid): skipped
     path = tmp_path_factory.mktemp("bags") / "run"
     record = {"protocol": "test", "membrane": "A2", "mass_kg": "0.003", "t0_ns": str(T0_NS),

@@ -22,7 +22,7 @@ from dea_ros.identify.pipeline import identify
 from dea_ros.identify.protocols import Protocol, load_protocol
 from dea_ros.identify.synth import synthesize_experiments
 from dea_ros.model import preset, static_equilibrium
-from dea_ros.solvers import SampledVoltage, simulate
+from dea_ros.solvers.integrate import simulate_held
 
 from fakes.recorded_bag import T0_NS, write_rig_bag
 
@@ -67,8 +67,12 @@ def two_passes(tmp_path_factory):
     tv = np.arange(0.0, duration, 2e-3)
     uv = np.array([at(t) for t in tv])
     td = np.arange(0.0, duration, 1e-3)
-    resp = simulate(preset("A2"), SampledVoltage(tv, uv, hold="linear"), duration, t_eval=td)
-    d = resp.displacement_m + np.random.default_rng(5).normal(0, 1e-6, td.size)
+    # the held voltage integrated hold by hold (the compiled kernel of the mock's truth), each 2 ms hold as two
+    # 1 ms holds of the same voltage so that the states fall on the laser's samples
+    resp = simulate_held(preset("A2"), np.repeat(uv, 2), 1e-3)
+    assert td.size <= resp.time_s.size - 1 and np.allclose(resp.time_s[:td.size], td, rtol=0.0, atol=1e-9)
+    d_true = resp.displacement_m[:td.size]
+    d = d_true + np.random.default_rng(5).normal(0, 1e-6, td.size)
     rec1 = experiment_record(PASS1, segs1, T0_NS, len(segs1), False, 500.0, "A2", 1)
     t2_ns = T0_NS + int(round(t2_0 * 1e9))
     extra = {"plan_json": json.dumps({"picks": [], "relative_ci95_before": {}}), "first_fit_json": "{}"}
@@ -80,7 +84,7 @@ def two_passes(tmp_path_factory):
     part = write_rig_bag(out / "aborted", tv[tv < td[cut][-1]], uv[tv < td[cut][-1]], td[cut], d[cut],
                          [(pass_metadata_name(1), rec1), (pass_metadata_name(2), aborted)])
     return {"full": full, "aborted": part, "segs1": segs1, "segs2": segs2, "t2_0": t2_0, "td": td,
-            "d_true": resp.displacement_m}
+            "d_true": d_true}
 
 
 def test_both_passes_are_cut_each_on_its_own_time_line(two_passes):
