@@ -5,8 +5,10 @@
 (:mod:`dea_ros.solvers.jit`: a per-user directory keyed by the kernels' sources and numba's version).
 The kernels are compiled by running the identification itself on a small synthetic experiment set
 (the same entry points and argument types as a run on a bag), so nothing has to be listed by hand.
-A marker file in the cache directory records a completed warm-up: :func:`kernels_cached` is then True
-and the demo skips it.
+A marker file in the cache directory records a completed warm-up for this installation (its path and
+the kernel files' stamps, :func:`~dea_ros.solvers.jit.cache_stamp`: numba compiles anew for another
+clone or install even in the same cache directory): :func:`kernels_cached` is then True and the demo
+skips it.
 """
 from __future__ import annotations
 
@@ -14,19 +16,25 @@ import time
 from pathlib import Path
 
 from ..model import preset
-from ..solvers.jit import CACHE_DIR
+from ..solvers.jit import CACHE_DIR, cache_stamp
 from .pipeline import identify
 from .synth import synthesize_experiments
 
-__all__ = ["compile_kernels", "kernels_cached", "MARKER"]
+__all__ = ["compile_kernels", "kernels_cached", "marker_path", "MARKER"]
 
 #: Written into the kernel cache directory once a warm-up completed.
 MARKER = ".dea_ros_identify_warm"
 
 
+def marker_path(cache_dir: str | Path = CACHE_DIR) -> Path:
+    """The marker of a completed warm-up of this installation's kernels in ``cache_dir``."""
+    return Path(cache_dir) / f"{MARKER}_{cache_stamp()}"
+
+
 def kernels_cached(cache_dir: str | Path = CACHE_DIR) -> bool:
-    """True when a warm-up completed for this cache directory (this numba, these kernel sources)."""
-    return (Path(cache_dir) / MARKER).is_file()
+    """True when a warm-up completed for this cache directory (this numba, these kernel sources) and this
+    installation (its path, the kernel files' stamps: :func:`~dea_ros.solvers.jit.cache_stamp`)."""
+    return marker_path(cache_dir).is_file()
 
 
 def compile_kernels(cache_dir: str | Path = CACHE_DIR) -> float:
@@ -41,7 +49,7 @@ def compile_kernels(cache_dir: str | Path = CACHE_DIR) -> float:
     elapsed = time.perf_counter() - t0
     try:
         Path(cache_dir).mkdir(parents=True, exist_ok=True)
-        (Path(cache_dir) / MARKER).write_text(f"warm-up completed in {elapsed:.1f} s\n")
+        marker_path(cache_dir).write_text(f"warm-up completed in {elapsed:.1f} s for {Path(__file__).parent}\n")
     except OSError:
         pass  # no writable cache: the kernels are compiled in each process anyway
     return elapsed

@@ -26,7 +26,7 @@ from pathlib import Path
 import numba
 from numba.core import config as numba_config
 
-__all__ = ["jit", "jit_uncached", "jit_inline", "cache_directory", "KERNEL_SOURCES", "CACHE_DIR"]
+__all__ = ["jit", "jit_uncached", "jit_inline", "cache_directory", "cache_stamp", "KERNEL_SOURCES", "CACHE_DIR"]
 
 #: The modules (relative to the dea_ros package) whose sources the cached kernels are compiled from.
 KERNEL_SOURCES = (
@@ -50,6 +50,21 @@ def _sources_key() -> str:
         path = root / name
         digest.update(name.encode())
         digest.update(path.read_bytes() if path.is_file() else b"")
+    return digest.hexdigest()[:16]
+
+
+def cache_stamp() -> str:
+    """16 hex digits naming what numba finds its cache entries by, beyond :func:`cache_directory`: the
+    kernel modules' absolute directory and each file's modification time and size (numba.core.caching: a
+    user-provided cache directory is divided by the source's directory, and an entry whose file's stamp
+    differs is compiled anew). Another clone or install of the same sources, or a touched file, compiles
+    the kernels again in the same cache directory: what was compiled for one stamp says nothing of another."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256(str(root).encode())
+    for name in KERNEL_SOURCES:
+        path = root / name
+        stat = path.stat() if path.is_file() else None
+        digest.update(f"{name}:{stat.st_mtime if stat else 0}:{stat.st_size if stat else 0};".encode())
     return digest.hexdigest()[:16]
 
 

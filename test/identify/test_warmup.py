@@ -1,10 +1,51 @@
-"""The demo's kernel warm-up is skipped once its marker is in the kernel cache directory."""
-from dea_ros.identify.warmup import MARKER, kernels_cached
-from dea_ros.solvers.jit import CACHE_DIR
+"""The demo's kernel warm-up is skipped once its marker for this installation is in the kernel cache.
+
+numba finds a cache entry by the kernel module's absolute directory and its file's modification time and
+size: a fresh clone (or another install) of the same sources compiles every kernel again although the cache
+directory (keyed by the sources) is the same. A marker that ignored this said "cached" to every new clone of
+a machine that had run the demo once, and the demo then compiled in its identification instead of in the
+background during the protocol (fresh clone, session 12: identification 103 s, of it ~75 s compiling;
+23-28 s once compiled)."""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import dea_ros
+from dea_ros.identify.warmup import MARKER, kernels_cached, marker_path
+from dea_ros.solvers.jit import CACHE_DIR, KERNEL_SOURCES
+
+STAMP = "from dea_ros.solvers.jit import cache_stamp; print(cache_stamp())"
 
 
-def test_marker_in_the_cache_directory_means_cached(tmp_path):
+def test_marker_of_this_installation_means_cached(tmp_path):
     assert not kernels_cached(tmp_path)
-    (tmp_path / MARKER).write_text("warm-up completed in 1.0 s\n")
+    (tmp_path / MARKER).write_text("warm-up completed in 1.0 s\n")      # the old, installation-blind marker
+    (tmp_path / f"{MARKER}_0123456789abcdef").write_text("warm-up completed in 1.0 s\n")   # another clone's
+    assert not kernels_cached(tmp_path)
+    marker_path(tmp_path).write_text("warm-up completed in 1.0 s\n")
     assert kernels_cached(tmp_path)
     assert isinstance(kernels_cached(), bool) and CACHE_DIR  # the default: this process's kernel cache
+
+
+def _stamp(package_parent: Path) -> str:
+    env = {**os.environ, "PYTHONPATH": str(package_parent)}
+    out = subprocess.run([sys.executable, "-c", STAMP], env=env, cwd=package_parent, capture_output=True,
+                         text=True, check=True)
+    return out.stdout.strip()
+
+
+def test_another_clone_or_a_touched_kernel_file_is_another_stamp(tmp_path):
+    source = Path(dea_ros.__file__).resolve().parent
+    clones = []
+    for name in ("clone_a", "clone_b"):
+        shutil.copytree(source, tmp_path / name / "dea_ros", ignore=shutil.ignore_patterns("__pycache__"))
+        clones.append(tmp_path / name)
+    a, b = _stamp(clones[0]), _stamp(clones[1])
+    assert a != b                                        # same sources, another directory
+    assert _stamp(clones[0]) == a                        # stable
+    kernel_file = clones[0] / "dea_ros" / KERNEL_SOURCES[0]
+    stat = kernel_file.stat()
+    os.utime(kernel_file, ns=(stat.st_atime_ns, stat.st_mtime_ns + 5_000_000_000))
+    assert _stamp(clones[0]) != a                        # touched: numba recompiles it
