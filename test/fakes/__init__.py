@@ -6,6 +6,7 @@
 * ``fake_uldaq.py``: a stand-in for the ``uldaq`` package with the real boards' capabilities;
 * ``amplifier_saboteur.py``: a process running amplifier_node next to a node that breaks it
   (run by path: :data:`AMPLIFIER_SABOTEUR`).
+* ``membranes.py``: membranes unlike the presets that several test modules use (test data).
 
 ``load_fake(name)`` gives a fresh module object each call, so module-level state of a fake (the
 fake uldaq's call log, its board) never leaks from one test into the next.

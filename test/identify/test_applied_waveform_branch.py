@@ -20,17 +20,9 @@ from dea_ros.errors import HarmonicBalanceError
 from dea_ros.identify.classification import classify_records, fitted_points, sweep_for
 from dea_ros.identify.experiments import ExperimentSet, SineData
 from dea_ros.identify.frequency_points import FrequencyPoint, point_solution
-from dea_ros.model import preset
 from dea_ros.model.equilibrium import static_equilibrium
 from dea_ros.solvers.inputs import SampledPeriodic
-
-#: F07 of the coverage family (test_beyond_fold.py)
-F07 = preset("A2").replace(
-    name="F07", prestretch=1.2040504286613254, thickness_m=2.718577223977574e-05,
-    plate_radius_m=0.004650763132756726, electrode_width_m=0.014088327367956255, mass_kg=0.0025537815941661887,
-    relative_permittivity=3.3254410847486247, k1_Pa=46083050.2731271, eta1_Pa_s=610535480.0111244,
-    eta2_Pa_s=12918.153146132565, beta_Pa=(-649423.5829986259, -470617.32024944725, 1002090.2299789758),
-    gamma_Pa=(-251839.89282292488, -1008795.7008347407, 160775.06479202586))
+from fakes.membranes import F07
 
 FREQUENCIES_HZ = (11.0, 11.5, 12.0)
 

@@ -17,15 +17,9 @@ import pytest
 from dea_ros.identify.classification import leave_out_unreproduced
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.synth import synthesize_experiments
-from dea_ros.model import preset
 from dea_ros.sim.plant import LASER_QUANTISATION_M
+from fakes.membranes import F07
 
-F07 = preset("A2").replace(
-    name="F07", prestretch=1.2040504286613254, thickness_m=2.718577223977574e-05,
-    plate_radius_m=0.004650763132756726, electrode_width_m=0.014088327367956255, mass_kg=0.0025537815941661887,
-    relative_permittivity=3.3254410847486247, k1_Pa=46083050.2731271, eta1_Pa_s=610535480.0111244,
-    eta2_Pa_s=12918.153146132565, beta_Pa=(-649423.5829986259, -470617.32024944725, 1002090.2299789758),
-    gamma_Pa=(-251839.89282292488, -1008795.7008347407, 160775.06479202586))
 #: the paper's four fit frequencies and 13 on F07's own resonance (bench_coverage_family.seventeen)
 FREQUENCIES_HZ = (0.2, 3.0, 6.0, 8.3, 8.4, 10.2, 10.65, 11.1, 11.2, 11.55, 12.0, 12.45, 12.9, 13.35, 13.8, 18.0, 40.0)
 
