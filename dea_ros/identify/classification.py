@@ -34,7 +34,7 @@ from .frequency_points import FrequencyPoint, point_solution
 
 __all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "classification_kinds",
            "leave_out_unreproduced",
-           "follow_applied_waveforms", "guess_for_waveform", "sweep_for"]
+           "follow_applied_waveforms", "guess_for_waveform", "leave_out_for_a_round", "sweep_for"]
 
 
 def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
@@ -211,12 +211,9 @@ def follow_applied_waveforms(entries: list, params: MembraneParameters, experime
                 e["guess"] = sol.state
                 continue
             why = f"it lands on another response ({rms * 1e6:.4g} um)"
-        e["used"] = "left out"
-        e["reason"] = (f"the model's {branch_kind(e['branch'])} at {e['fitted_model_rms_m'] * 1e6:.4g} um (nominal "
-                       f"sine) followed to the record's applied waveform: {why}; next to a fold, beyond it for "
-                       "that waveform at the current parameters; classified again after the next round of the fit")
-        for key in ("guess", "branch", "coexisting", "note"):
-            e.pop(key, None)
+        leave_out_for_a_round(e, f"the model's {branch_kind(e['branch'])} at {e['fitted_model_rms_m'] * 1e6:.4g} um "
+                              f"(nominal sine) followed to the record's applied waveform: {why}; next to a fold, "
+                              "beyond it for that waveform at the current parameters")
 
 
 #: A fitted record whose measured RMS and the nearest model response of its kind differ by more than
@@ -245,13 +242,18 @@ def leave_out_unreproduced(entries: list) -> None:
     if not far or len(far) > UNREPRODUCED_MAX_SHARE * len(fitted):
         return
     for e, model_m in far:
-        e["used"] = "left out"
-        e["reason"] = (f"no response of the model at the current parameters comes near the record "
-                       f"({e['measured_rms_m'] * 1e6:.4g} um measured, {model_m * 1e6:.4g} um on the nearest "
-                       f"{branch_kind(e['branch'])}): it is on a branch the model does not have there yet "
-                       "(beyond a fold); classified again after the next round of the fit")
-        for key in ("guess", "branch", "coexisting", "note"):
-            e.pop(key, None)
+        leave_out_for_a_round(e, f"no response of the model at the current parameters comes near the record "
+                                 f"({e['measured_rms_m'] * 1e6:.4g} um measured, {model_m * 1e6:.4g} um on the nearest "
+                                 f"{branch_kind(e['branch'])}): it is on a branch the model does not have there yet "
+                                 "(beyond a fold)")
+
+
+def leave_out_for_a_round(entry: dict, why: str) -> None:
+    """A fitted record left out of this round of the fit, with the reason (classified again after it)."""
+    entry["used"] = "left out"
+    entry["reason"] = f"{why}; classified again after the next round of the fit"
+    for key in ("guess", "branch", "coexisting", "note"):
+        entry.pop(key, None)
 
 
 def _points(classification: list, experiments: ExperimentSet) -> list:
