@@ -6,7 +6,15 @@ this file goes on ``sys.path`` once, here, for ``from fakes import load_fake``.
 import sys
 from pathlib import Path
 
-import pytest
+from dea_ros.blas_threads import use_one_blas_thread
+
+# Before numpy is first imported: the suite computes with one BLAS thread, as the package's command
+# line and nodes do (dea_ros.blas_threads). A test that compares a node's fit with the same fit
+# in the test process (test_identifier_adaptive: to 1e-9) then compares one computation, not two
+# thread counts' roundings (4e-8 apart on the CI machine of stop 28).
+use_one_blas_thread()
+
+import pytest  # noqa: E402
 
 TEST_DIR = str(Path(__file__).resolve().parent)
 if TEST_DIR not in sys.path:
