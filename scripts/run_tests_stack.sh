@@ -9,14 +9,13 @@
 #                                                     Python <= 3.11 only), with Jazzy's rclpy and messages from the
 #                                                     ros-jazzy-* wheels: the whole suite, nodes and rig included,
 #                                                     except the long numerical tests without ROS (marker
-#                                                     numeric_heavy, test/conftest.py: humble's older and the
-#                                                     default stack's newer numpy/scipy/numba run them)
+#                                                     numeric_heavy, test/conftest.py: the humble stack runs them)
 #
 # The environment (.venv-<stack>) is built the way a lab PC gets its packages: first the distribution's
 # versions (requirements-stack-<stack>.txt, as apt installs them), then the project's own set-up
 # (requirements*.txt and the package, as scripts/setup_env.sh installs them), which must leave the
-# distribution's versions alone (checked). Without pytest arguments the linters are left out (they
-# run on the default stack, scripts/run_tests.sh); ROS_DISTRO is set to the stack's name.
+# distribution's versions alone (checked). The linters are left out (they run on the default stack,
+# scripts/run_tests.sh) unless a -m of the caller's says otherwise; ROS_DISTRO is set to the stack's name.
 set -euo pipefail
 here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$here"
@@ -81,11 +80,10 @@ fi
 "$venv/bin/python" -c "import sys, numpy, scipy, matplotlib, yaml, numba; print('[stack $stack] Python', sys.version.split()[0], \
 'numpy', numpy.__version__, 'numba', numba.__version__, 'scipy', scipy.__version__, 'matplotlib', matplotlib.__version__, 'PyYAML', yaml.__version__)"
 export MPLBACKEND=Agg ROS_DISTRO="$stack"
-if [ "$#" -eq 0 ]; then
-  if [ "$stack" = jazzy ]; then
-    set -- -m "not linter and not numeric_heavy"   # humble and default run those (test/conftest.py)
-  else
-    set -- -m "not linter"
-  fi
+if [ "$stack" = jazzy ]; then
+  marker="not linter and not numeric_heavy"   # humble runs those (test/conftest.py)
+else
+  marker="not linter"
 fi
-exec "$venv/bin/python" -m pytest -q "$@"
+# a -m of the caller's comes later on the command line and replaces this one (-m "" runs everything)
+exec "$venv/bin/python" -m pytest -q -m "$marker" "$@"
