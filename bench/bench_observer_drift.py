@@ -39,17 +39,22 @@ from dea_ros.control import (  # noqa: E402
     SimulatedRig,
     TrackerConfig,
 )
+from dea_ros.control.health import LABELS  # noqa: E402
 from dea_ros.model import config_dir, load_parameters  # noqa: E402
 
 U_MAX = 3150.0
 
 
 def cases(p):
+    """(name, plant, the finding's label that names the drift)."""
     sc = lambda xs, f: tuple(x * f for x in xs)  # noqa: E731
-    return [("eps_r -3 %", p.replace(relative_permittivity=p.relative_permittivity * 0.97)),
-            ("static stiffness +3 %", p.replace(beta_Pa=sc(p.beta_Pa, 1.03), gamma_Pa=sc(p.gamma_Pa, 1.03))),
-            ("k1 +25 %, eta2 x0.5", p.replace(k1_Pa=p.k1_Pa * 1.25, eta2_Pa_s=p.eta2_Pa_s * 0.5)),
-            ("eta1 x0.3", p.replace(eta1_Pa_s=p.eta1_Pa_s * 0.3))]
+    return [("eps_r -3 %", p.replace(relative_permittivity=p.relative_permittivity * 0.97),
+             LABELS["electrostatic_gain"]),
+            ("static stiffness +3 %", p.replace(beta_Pa=sc(p.beta_Pa, 1.03), gamma_Pa=sc(p.gamma_Pa, 1.03)),
+             LABELS["static_stiffness"]),
+            ("k1 +25 %, eta2 x0.5", p.replace(k1_Pa=p.k1_Pa * 1.25, eta2_Pa_s=p.eta2_Pa_s * 0.5),
+             LABELS["viscoelastic_stiffness"]),
+            ("eta1 x0.3", p.replace(eta1_Pa_s=p.eta1_Pa_s * 0.3), LABELS["creep_time"])]
 
 
 def replay(ident, res, fits: bool, voltage_delay_samples: int = 1):
@@ -72,12 +77,12 @@ def replay(ident, res, fits: bool, voltage_delay_samples: int = 1):
     return found, tracking.tracker.ratios, cost
 
 
-def _first(found):
-    return f"{found[0][0]:.0f}" if found else "none"
-
-
-def _short(found):
-    return found[0][1].split(":")[0] if found else ""
+def _cell(found, label):
+    """First WARN s (its first finding); the first report naming the drift, s."""
+    if not found:
+        return "none; none"
+    own = [t for t, message in found if label in message]
+    return f"{found[0][0]:.0f} ({found[0][1].split(':')[0]}); {f'{own[0]:.0f}' if own else 'none'}"
 
 
 def main() -> None:
@@ -96,21 +101,20 @@ def main() -> None:
     lines = [f"Machine: {machine()}", "",
              f"Controller's model and model_node's: `{Path(args.params).name}` (the demo's identified parameters); "
              f"plants: that membrane after the drift; {args.seconds:g} s of ordinary operation per run, seeds "
-             f"{', '.join(map(str, args.seeds))}. First WARN [s] of each path on the same samples "
-             "(the finding named after it):", "",
+             f"{', '.join(map(str, args.seeds))}. Per path, on the same samples: first WARN [s] (its first "
+             "finding); the first report that names the drift [s]:", "",
              "| plant | seed | controller (AdaptiveModel) | model_node before (EKF alone) | "
              "model_node after (DriftTracking) | after: tracked gain / static / k1 / creep time |",
              "|---|---|---|---|---|---|"]
     costs = []
-    for name, plant in cases(ident):
+    for name, plant, label in cases(ident):
         for seed in args.seeds:
             ctl_found, res = operate_with_health(ident, plant, cfg, rig0, args.seconds, seed)
             before = replay(ident, res, False)[0]
             after, ratios, cost = replay(ident, res, True)
             costs += cost
-            lines.append(f"| {name} | {seed} | {_first(ctl_found)} ({_short(ctl_found)}) | {_first(before)} "
-                         f"({_short(before)}) | {_first(after)} ({_short(after)}) | "
-                         + " / ".join(f"{v:.3f}" for v in ratios.values()) + " |")
+            lines.append(f"| {name} | {seed} | {_cell(ctl_found, label)} | {_cell(before, label)} | "
+                         f"{_cell(after, label)} | " + " / ".join(f"{v:.3f}" for v in ratios.values()) + " |")
             print(lines[-1], flush=True)
     if args.quiet_s > 0:
         seed = args.seeds[0] + 1
