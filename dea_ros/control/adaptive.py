@@ -243,8 +243,9 @@ class DriftTracking:
         self.fits_absorbed += 1
 
     def step(self, t_s: float, measured_m: float, out) -> bool:
-        """observe + (synchronously) prepare and apply a due plan: for simulations; True when retuned.
-        ``out``: what :meth:`observe` takes after the displacement (here the applied voltage, V)."""
+        """observe + (synchronously) prepare and apply a due plan: for simulations; True when the controller
+        was retuned (never without one). ``out``: what :meth:`observe` takes after the displacement (here the
+        applied voltage, V; AdaptiveModel: the ControlOutput)."""
         self.observe(t_s, measured_m, out)
         window = self.due(t_s)
         if window is None:
