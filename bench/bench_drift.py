@@ -40,7 +40,7 @@ from dea_ros.control import (
     run_closed_loop,
 )
 
-__all__ = ["drift_cases", "drift_lines", "callback_cost_lines"]
+__all__ = ["drift_cases", "drift_lines", "callback_cost_lines", "operate_with_health"]
 
 WARMUP_S = 10.0
 STEP_M = 40e-6
@@ -134,6 +134,11 @@ def _u0(plant, cfg, d0):
 
 def _first_warning(ident, plant, cfg, rig0, seconds, seed):
     """Ordinary operation (setpoints every 1.5 s) with the health monitor: [(t, message)] of WARN+ reports."""
+    return operate_with_health(ident, plant, cfg, rig0, seconds, seed)[0]
+
+
+def operate_with_health(ident, plant, cfg, rig0, seconds, seed):
+    """:func:`_first_warning`'s run: ([(t, message)] of the controller's WARN+ reports, the ClosedLoopResult)."""
     ctl = PositionController(ident, cfg)
     ad = AdaptiveModel(ctl, enabled=True)
     mon = HealthMonitor()
@@ -159,9 +164,9 @@ def _first_warning(ident, plant, cfg, rig0, seconds, seed):
                 found.append((t, rep.message))
         return out.voltage_V
 
-    run_closed_loop(dataclasses.replace(rig0, params=plant, seed=seed), loop, seconds,
-                    initial_voltage_V=_u0(plant, cfg, float(targets[0])))
-    return found
+    res = run_closed_loop(dataclasses.replace(rig0, params=plant, seed=seed), loop, seconds,
+                          initial_voltage_V=_u0(plant, cfg, float(targets[0])))
+    return found, res
 
 
 def _fmt_ms(values) -> str:

@@ -19,7 +19,8 @@
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
-from .adaptive import AdaptiveModel, RetunePlan, RetuneRequest, apply_retune, prepare_plan, prepare_retune
+from .adaptive import (AdaptiveModel, DriftTracking, RetunePlan, RetuneRequest, apply_retune, prepare_plan,
+                       prepare_retune)
 from .controller import ControllerConfig, ControlOutput, PositionController
 from .feedback import FeedbackGains, PIDOnU2, design_gains, loop_margins
 from .health import (HealthMonitor, HealthReport, HealthThresholds, PredictionErrorStats, describe_drift,
@@ -52,7 +53,8 @@ __all__ = [
     "plan_move_steps", "plan_checks", "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
     "StreamedReference", "StreamDecision",
-    "ModelTracker", "TrackedModel", "TrackerConfig", "AdaptiveModel", "RetunePlan", "apply_retune", "prepare_retune",
+    "ModelTracker", "TrackedModel", "TrackerConfig", "DriftTracking", "AdaptiveModel", "RetunePlan", "apply_retune",
+    "prepare_retune",
     "RetuneRequest", "prepare_plan", "RetuneWorker", "BackgroundRetune", "RETUNE_MODES",
     "HealthMonitor", "HealthReport", "HealthThresholds", "PredictionErrorStats", "describe_drift",
     "describe_payload", "moving_mass_ratio",

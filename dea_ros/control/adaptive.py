@@ -18,6 +18,13 @@ steps, so that the slow part can run off the control loop (a node: in a worker p
   keeps the reference, the strain integrator's state and the PID's state.
 
 ``enabled = False`` stops both the tracking updates and the retuning (the identified model stays).
+
+:class:`DriftTracking` is the same without a controller (model_node's membrane health: applied voltage
+and measured d): the same tracker, the same window fit every ``retune_period_s`` through
+:func:`prepare_plan` (a request without controller settings: the plan carries the fit only) and the
+same absorption; :class:`AdaptiveModel` is a :class:`DriftTracking` that also retunes its controller.
+Both run off the loop through :class:`.retune_worker.BackgroundRetune`, so the two nodes' health reads
+the same estimate on the same data.
 """
 from __future__ import annotations
 
@@ -35,7 +42,8 @@ from .inverse import ModelInverse
 from .tracking import ModelTracker, TrackerConfig
 from .window_fit import WindowFit
 
-__all__ = ["RetunePlan", "RetuneRequest", "prepare_plan", "prepare_retune", "apply_retune", "AdaptiveModel"]
+__all__ = ["RetunePlan", "RetuneRequest", "prepare_plan", "prepare_retune", "apply_retune", "DriftTracking",
+           "AdaptiveModel"]
 
 
 @dataclass(frozen=True)
@@ -59,8 +67,8 @@ class RetuneRequest:
     x: tuple                       # the tracker's estimate: theta_g, theta_h, theta_1, ln(tau/tau0)
     extra_delay_s: float           # the tracker's extra loop delay, s
     in_use: dict                   # the ratios of the model in use (1 = identified)
-    config: ControllerConfig       # the controller's settings now
-    configured: ControllerConfig   # its settings at start-up (the configured loop delay)
+    config: ControllerConfig | None       # the controller's settings now (None: no controller, only the fit)
+    configured: ControllerConfig | None   # its settings at start-up (the configured loop delay)
     retune_threshold: float
     delay_deadband_s: float
     window: np.ndarray | None      # (3, n): d m, applied voltage V, saturated; None: no window fit
@@ -117,6 +125,8 @@ def prepare_plan(request: RetuneRequest, tracker: ModelTracker | None = None) ->
     x = tracker.absorbed(fit, r.x)
     params = tracker.tracked_parameters(x)
     ratios = {k: v for k, v in zip(r.in_use, (float(x[0]), float(x[1]), float(x[2]), math.exp(x[3])))}
+    if r.config is None:        # no controller (model_node): the fit only, absorbed by the caller
+        return RetunePlan(params, None, None, ratios, fit)
     extra = tracker.absorbed_delay(fit, r.extra_delay_s)
     config = r.configured if abs(extra) < r.delay_deadband_s else dataclasses.replace(
         r.configured, loop_delay_s=max(r.configured.loop_delay_s + extra, 0.0))
@@ -161,7 +171,91 @@ def apply_retune(ctl: PositionController, plan: RetunePlan, t_s: float | None = 
         pid.integral = (a_fb_new - rest) / g.ki_per_s3
 
 
-class AdaptiveModel:
+class DriftTracking:
+    """Online tracking with the periodic window fit, without a controller (model_node; the base of
+    :class:`AdaptiveModel`): the same tracker, the same :func:`prepare_plan` and the same absorption.
+
+    Per sample: :meth:`observe` (measured d m, applied voltage V). Every ``retune_period_s`` of samples
+    :meth:`due` hands out the window; :meth:`prepare` (here, or a worker: :class:`.retune_worker.BackgroundRetune`)
+    fits it (a request without controller settings: a plan that only carries the fit) and :meth:`apply`
+    absorbs the fit into the tracker (:meth:`.tracking.ModelTracker.absorb`). ``enabled = False``: no
+    tracking, no fit.
+    """
+
+    def __init__(self, params: MembraneParameters, config: TrackerConfig | None = None,
+                 retune_period_s: float = 2.0, enabled: bool = True):
+        self.identified = params
+        self.configured: ControllerConfig | None = None
+        self.retune_threshold = 0.0
+        self.delay_deadband_s = 0.0
+        self.tracker = ModelTracker(params, config)
+        self.retune_period_s = float(retune_period_s)
+        self.enabled = bool(enabled)
+        self.tracker.enabled = self.enabled
+        self.in_use = {name: 1.0 for name in self.tracker.ratios}
+        self.last_retune_s: float | None = None
+        self.retunes = 0
+        self.fits_absorbed = 0           # plans whose window fit was absorbed (informative or not)
+
+    @property
+    def controller_config(self) -> ControllerConfig | None:
+        """The controller's settings now (None: no controller, the plan only fits)."""
+        return None
+
+    def observe(self, t_s: float, measured_m: float, voltage_V: float, saturated: bool = False) -> None:
+        """One sample: the measured displacement (m) and the voltage applied meanwhile (V)."""
+        if self.enabled:
+            self.tracker.update(measured_m, voltage_V, saturated)
+        if self.last_retune_s is None:
+            self.last_retune_s = t_s
+
+    def resting(self, t_s: float) -> bool:
+        """Whether a fit may be prepared at t_s (the controller: not while its reference moves)."""
+        return True
+
+    def due(self, t_s: float):
+        """The window of samples (:meth:`ModelTracker.window`, or an empty tuple without one) when a fit
+        is due at t_s, else None (cheap: a copy of the buffer)."""
+        if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
+            return None
+        if not self.resting(t_s):
+            return None            # the next sample at rest
+        self.last_retune_s = t_s
+        window = self.tracker.window()
+        return () if window is None else window
+
+    def request(self, window) -> RetuneRequest:
+        """The plain data of a retune on ``window`` (cheap: the estimate now, the settings, the window)."""
+        tr = self.tracker
+        return RetuneRequest(self.identified, tr.config, tuple(float(v) for v in tr.x), float(tr.extra_delay_s),
+                             dict(self.in_use), self.controller_config, self.configured, self.retune_threshold,
+                             self.delay_deadband_s, window if window is not None and len(window) else None)
+
+    def prepare(self, window) -> RetunePlan:
+        """Slow (run it off the control loop): :func:`prepare_plan` of :meth:`request` in this process."""
+        return prepare_plan(self.request(window), self.tracker)
+
+    def apply(self, plan: RetunePlan | None, t_s: float) -> None:
+        """Absorb the plan's window fit into the tracker."""
+        if plan is None:
+            return
+        self.tracker.absorb(plan.fit)
+        self.fits_absorbed += 1
+
+    def step(self, t_s: float, measured_m: float, out) -> bool:
+        """observe + (synchronously) prepare and apply a due plan: for simulations; True when the controller
+        was retuned (never without one). ``out``: what :meth:`observe` takes after the displacement (here the
+        applied voltage, V; AdaptiveModel: the ControlOutput)."""
+        self.observe(t_s, measured_m, out)
+        window = self.due(t_s)
+        if window is None:
+            return False
+        before = self.retunes
+        self.apply(self.prepare(window), t_s)
+        return self.retunes > before
+
+
+class AdaptiveModel(DriftTracking):
     """Online tracking + retuning of one :class:`PositionController` (no ROS, no threads).
 
     Per sample: :meth:`observe` (after ``ctl.update``). :meth:`due` says when a retune should be
@@ -172,65 +266,28 @@ class AdaptiveModel:
     def __init__(self, ctl: PositionController, config: TrackerConfig | None = None,
                  retune_period_s: float = 2.0, retune_threshold: float = 0.005, enabled: bool = True,
                  delay_deadband_s: float = 0.3e-3):
+        super().__init__(ctl.params, config, retune_period_s, enabled)
         self.ctl = ctl
-        self.identified = ctl.params
         self.configured = ctl.config
         self.delay_deadband_s = float(delay_deadband_s)
-        self.tracker = ModelTracker(ctl.params, config)
-        self.retune_period_s = float(retune_period_s)
         self.retune_threshold = float(retune_threshold)
-        self.enabled = bool(enabled)
-        self.tracker.enabled = self.enabled
-        self.in_use = {name: 1.0 for name in self.tracker.ratios}
-        self.last_retune_s: float | None = None
-        self.retunes = 0
+
+    @property
+    def controller_config(self) -> ControllerConfig:
+        return self.ctl.config
 
     def observe(self, t_s: float, measured_m: float, out: ControlOutput) -> None:
         """One sample: the measured displacement and the controller's output for it."""
-        if self.enabled:
-            self.tracker.update(measured_m, out.voltage_V, out.saturated != 0)
-        if self.last_retune_s is None:
-            self.last_retune_s = t_s
+        super().observe(t_s, measured_m, out.voltage_V, out.saturated != 0)
 
-    def due(self, t_s: float):
-        """The window of samples (:meth:`ModelTracker.window`, or an empty tuple without one) when a retune
-        is due at t_s and the reference is at rest, else None (cheap: a copy of the buffer)."""
-        if not self.enabled or self.last_retune_s is None or t_s - self.last_retune_s < self.retune_period_s:
-            return None
+    def resting(self, t_s: float) -> bool:
         state = self.ctl.state
-        if state is not None and t_s <= state.trajectory.end_s:
-            return None            # not while the reference moves: the next sample at rest
-        self.last_retune_s = t_s
-        window = self.tracker.window()
-        return () if window is None else window
-
-    def request(self, window) -> RetuneRequest:
-        """The plain data of a retune on ``window`` (cheap: the estimate now, the settings, the window)."""
-        tr = self.tracker
-        return RetuneRequest(self.identified, tr.config, tuple(float(v) for v in tr.x), float(tr.extra_delay_s),
-                             dict(self.in_use), self.ctl.config, self.configured, self.retune_threshold,
-                             self.delay_deadband_s, window if window is not None and len(window) else None)
-
-    def prepare(self, window) -> RetunePlan:
-        """Slow (run it off the control loop): :func:`prepare_plan` of :meth:`request` in this process."""
-        return prepare_plan(self.request(window), self.tracker)
+        return state is None or t_s > state.trajectory.end_s
 
     def apply(self, plan: RetunePlan | None, t_s: float) -> None:
-        if plan is None:
-            return
-        self.tracker.absorb(plan.fit)
-        if plan.inverse is None:
+        super().apply(plan, t_s)
+        if plan is None or plan.inverse is None:
             return
         apply_retune(self.ctl, plan, t_s)
         self.in_use = dict(plan.ratios)
         self.retunes += 1
-
-    def step(self, t_s: float, measured_m: float, out: ControlOutput) -> bool:
-        """observe + (synchronously) prepare and apply a due retune: for simulations; True when retuned."""
-        self.observe(t_s, measured_m, out)
-        window = self.due(t_s)
-        if window is None:
-            return False
-        before = self.retunes
-        self.apply(self.prepare(window), t_s)
-        return self.retunes > before

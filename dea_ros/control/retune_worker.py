@@ -29,7 +29,7 @@ import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 
 from ..errors import RetuneWorkerError
-from .adaptive import AdaptiveModel, RetunePlan, RetuneRequest, prepare_plan
+from .adaptive import DriftTracking, RetunePlan, RetuneRequest, prepare_plan
 
 __all__ = ["RetuneWorker", "BackgroundRetune", "RETUNE_MODES", "serve"]
 
@@ -158,7 +158,8 @@ class RetuneWorker:
 
 
 class BackgroundRetune:
-    """Tracking and retuning of an :class:`~.adaptive.AdaptiveModel` with the slow part off the control loop.
+    """Tracking and retuning of an :class:`~.adaptive.AdaptiveModel` (or the window fit of a
+    :class:`~.adaptive.DriftTracking`: model_node) with the slow part off the control loop.
 
     Per sample, after ``ctl.update``: :meth:`observe`. ``mode``: :data:`RETUNE_MODES` ("process": the
     worker process, started here; "thread": the plan computed by the helper thread in this process, as
@@ -166,7 +167,7 @@ class BackgroundRetune:
     ``failures`` (each with ``last_failure``).
     """
 
-    def __init__(self, adaptive: AdaptiveModel, mode: str = "process", timeout_s: float = 10.0,
+    def __init__(self, adaptive: DriftTracking, mode: str = "process", timeout_s: float = 10.0,
                  start_timeout_s: float = 120.0, nice: int = 0):
         if mode not in RETUNE_MODES:
             raise ValueError(f"retune mode: one of {RETUNE_MODES}, got {mode!r}")
@@ -191,7 +192,10 @@ class BackgroundRetune:
         return self.pending is not None and not self.pending.done()
 
     def observe(self, t_s: float, measured_m: float, out) -> None:
-        """One control step: track; apply a finished plan, or hand a due retune to the helper (never waits)."""
+        """One control step: track; apply a finished plan, or hand a due retune to the helper (never waits).
+
+        ``out``: the sample's input as ``adaptive.observe`` takes it (AdaptiveModel: the controller's
+        ControlOutput; DriftTracking: the applied voltage, V)."""
         adaptive = self.adaptive
         adaptive.observe(t_s, measured_m, out)
         if self.helper is None:

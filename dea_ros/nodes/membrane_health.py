@@ -2,7 +2,8 @@
 
 The nodes declare the parameters (:func:`declare_health_parameters`), feed every sample through
 :class:`ControllerHealth` (the controller's tracker and retuning) or :class:`ObserverHealth`
-(model_node: a tracker on applied voltage and measured displacement, and the prediction error), and
+(model_node: the same tracker and window fit on applied voltage and measured displacement, without the
+retune, and the prediction error), and
 publish :meth:`status` as a second DiagnosticStatus "<node>: membrane health" on /diagnostics.
 The computation is the core's (:mod:`dea_ros.control.tracking`, :mod:`~dea_ros.control.adaptive`,
 :mod:`~dea_ros.control.health`, the retune off the loop :mod:`~dea_ros.control.retune_worker`); here:
@@ -14,9 +15,9 @@ from ..control import (
     RETUNE_MODES,
     AdaptiveModel,
     BackgroundRetune,
+    DriftTracking,
     HealthMonitor,
     HealthThresholds,
-    ModelTracker,
     PredictionErrorStats,
     TrackerConfig,
 )
@@ -28,7 +29,17 @@ __all__ = ["declare_health_parameters", "ControllerHealth", "ObserverHealth", "d
 def declare_health_parameters(node, tracking_default: bool, retunes: bool = False) -> None:
     declare_bool(node, "track_model", tracking_default,
                  "track the membrane's drift online (electrostatic gain, stiffness, creep time)"
-                 + ("; the controller's feedforward and gains follow it" if tracking_default else ""))
+                 + ("; the controller's feedforward and gains follow it" if retunes else ""))
+    if not retunes:   # model_node: the controller's window fit, without its retune
+        declare_str(node, "window_fit_worker", "thread",
+                    "where the window fit of the tracked drift runs: 'thread' (a helper thread of the node), "
+                    "'process' (a worker process started with the node), 'off' (the EKF alone)")
+        declare_float(node, "window_fit_period_s", 2.0,
+                      "a window fit every this many seconds of laser samples (as the controller's retune), s",
+                      0.1, 600.0)
+        declare_float(node, "window_fit_timeout_s", 10.0,
+                      "a window fit not done within this time is dropped (process: the worker replaced), s",
+                      0.05, 600.0)
     if retunes:       # the controller
         declare_str(node, "retune_worker", "process",
                     "where a retune (window fit + gain design) is prepared: 'process' (a worker process started "
@@ -109,26 +120,52 @@ class ControllerHealth:
 
 
 class ObserverHealth:
-    """model_node: a tracker on (measured d, applied voltage) and the prediction error statistics."""
+    """model_node: the drift tracked on (measured d, applied voltage) with the controller's window fit
+    (:class:`DriftTracking` off the callback: :class:`BackgroundRetune`), and the prediction error statistics.
+
+    Raises ValueError for an unknown ``window_fit_worker``.
+    """
 
     def __init__(self, node, params, sample_period_s: float):
-        self.enabled = bool(node.get_parameter("track_model").value)
-        self.tracker = ModelTracker(params, TrackerConfig(sample_period_s=sample_period_s))
-        self.tracker.enabled = self.enabled
+        p = node.get_parameter
+        self.enabled = bool(p("track_model").value)
+        self.sample_period_s = float(sample_period_s)
+        self.tracking = DriftTracking(params, TrackerConfig(sample_period_s=sample_period_s),
+                                      float(p("window_fit_period_s").value), enabled=self.enabled)
+        mode = str(p("window_fit_worker").value)
+        if mode not in RETUNE_MODES:
+            raise ValueError(f"parameter 'window_fit_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
+        self.fits = BackgroundRetune(self.tracking, mode, float(p("window_fit_timeout_s").value), nice=10)
         self.monitor = HealthMonitor(thresholds_from(node))
         self.errors = PredictionErrorStats()   # since the last status (each report clears it)
         self.samples_observed = 0              # laser samples since start (monotonic)
+        self.logger = node.get_logger()
+        self.failures_logged = 0
+
+    @property
+    def tracker(self):
+        return self.tracking.tracker
 
     def observe(self, measured_m: float, predicted_m: float, voltage_V: float) -> None:
+        """A laser sample; the tracker's clock is the sample count (laser stamps may jump, its period does not)."""
         self.samples_observed += 1
         self.errors.add(measured_m, predicted_m)
-        if self.enabled:
-            self.tracker.update(measured_m, voltage_V)
+        fits = self.fits
+        fits.observe(self.samples_observed * self.sample_period_s, measured_m, voltage_V)
+        if fits.failures != self.failures_logged:        # rare: a dead or late worker
+            self.failures_logged = fits.failures
+            self.logger.warning(f"no window fit this time ({fits.failures} so far): {fits.last_failure}",
+                                throttle_duration_sec=5.0)
 
     def status(self, t_s: float):
         tr = self.tracker.result()
         report = self.monitor.assess(t_s, tr.ratios if self.enabled else None, self.errors)
         values = [("track_model", str(self.enabled)), ("tracker_updates", tr.updates),
+                  ("window_fit_worker", self.fits.describe()), ("window_fits", self.fits.applied),
+                  ("window_fits_informative", self.tracker.fits), ("window_fit_failures", self.fits.failures),
                   ("laser_samples", self.samples_observed)] + report.values
         self.errors.clear()
         return diagnostic_level(report.level), report.message, values
+
+    def close(self) -> None:
+        self.fits.close()

@@ -24,9 +24,15 @@ more than ``max_catch_up_s`` (simulated time restarted), the model starts over f
 Membrane health: model_node also subscribes ``displacement`` (sensor_msgs/Range, the laser) and
 publishes a second DiagnosticStatus "<node>: membrane health": the prediction error (measured minus
 predicted displacement: mean, RMS, max over each report) and, with ``track_model``, the membrane's
-drift tracked online from the applied voltage and the measured displacement
-(:class:`dea_ros.control.ModelTracker`), in words with WARN/ERROR levels (:mod:`.membrane_health`:
-``health_*`` parameters; ``health_sample_period_s`` the laser's sample period).
+drift tracked online from the applied voltage and the measured displacement, in words with WARN/ERROR
+levels (:mod:`.membrane_health`: ``health_*`` parameters; ``health_sample_period_s`` the laser's sample
+period). The tracking is position_controller_node's (:class:`dea_ros.control.DriftTracking`: the
+:class:`~dea_ros.control.ModelTracker` EKF per laser sample plus the windowed least squares of the last
+10 s, absorbed the same way, without the retune), so both nodes report the same drift on the same data.
+The window fit (~0.1 s) never runs in a callback: every ``window_fit_period_s`` (default 2 s) of laser
+samples it is handed to ``window_fit_worker`` ('thread', default: a helper thread; 'process': a worker
+process started with the node, nice 10; 'off': the EKF alone, slow on k1 and the creep time), and a
+fit not back within ``window_fit_timeout_s`` is dropped (counted as ``window_fit_failures``).
 
 Parameters: ``params_file`` (a preset name LP1/A1/A2 or a parameters YAML, e.g.
 an identified params.yaml), ``rate_hz``, ``dt_s`` (integration step, default
@@ -198,10 +204,15 @@ class ModelNode(Node):
             resp.success = False
             resp.message = f"params_file '{source}': {exc}"
             return resp
+        self.health.close()
         self.health = ObserverHealth(self, self.predictor.params, self.health_period_s)
         resp.success = True
         resp.message = f"loaded {self.stepper.params.name} from '{source}'"
         return resp
+
+    def destroy_node(self):
+        self.health.close()          # the window fit's helper thread or worker process
+        return super().destroy_node()
 
     def publish_diagnostics(self) -> None:
         predictor = self.predictor

@@ -35,7 +35,7 @@ def test_model_node_reports_the_prediction_error_and_the_drift_in_words(ros_cont
     truth = a2.replace(name="aged", relative_permittivity=a2.relative_permittivity * 0.94)   # electrode ageing
     node = ModelNode(context=ros_context, parameter_overrides=[
         Parameter("params_file", value="A2"), Parameter("rate_hz", value=1000.0),
-        Parameter("health_persistence_s", value=0.0)])
+        Parameter("health_persistence_s", value=0.0), Parameter("window_fit_period_s", value=1.0)])
     peer = Node("rig", context=ros_context)
     volt_pub = peer.create_publisher(BatteryState, "voltage", SENSOR_QOS)
     disp_pub = peer.create_publisher(Range, "displacement", SENSOR_QOS)
@@ -71,6 +71,8 @@ def test_model_node_reports_the_prediction_error_and_the_drift_in_words(ros_cont
     assert "electrostatic gain" in status.message and "below the identified model" in status.message
     assert "electrode ageing" in status.message
     assert 0.90 < float(values["tracked_electrostatic_gain_ratio"]) < 0.985
+    assert values["window_fit_worker"] == "thread" and values["window_fit_failures"] == "0"
+    assert int(values["window_fits"]) >= 1          # the controller's window fit ran off the callbacks
     windows = [{kv.key: kv.value for kv in st.values} for st in _health(diags, "membrane health")]
     windows = [w for w in windows if int(w.get("prediction_samples", "0")) > 20]
     assert windows                                                     # the error statistics of each report
