@@ -21,6 +21,7 @@ from ..control import (
     PredictionErrorStats,
     TrackerConfig,
 )
+from ..errors import ParameterError
 from .common import declare_bool, declare_float, declare_int, declare_str
 
 __all__ = ["declare_health_parameters", "ControllerHealth", "ObserverHealth", "diagnostic_level"]
@@ -76,7 +77,7 @@ def diagnostic_level(level: int) -> bytes:
 class ControllerHealth:
     """position_controller_node: tracker + retuning of its PositionController (off the loop) + health.
 
-    Raises ValueError for an unknown ``retune_worker``.
+    Raises ParameterError (a ValueError) for an unknown ``retune_worker``.
     """
 
     def __init__(self, node, ctl, sample_period_s: float):
@@ -86,7 +87,7 @@ class ControllerHealth:
         self.monitor = HealthMonitor(thresholds_from(node))
         mode = str(p("retune_worker").value)
         if mode not in RETUNE_MODES:
-            raise ValueError(f"parameter 'retune_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
+            raise ParameterError(f"parameter 'retune_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
         self.retune = BackgroundRetune(self.adaptive, mode, float(p("retune_timeout_s").value),
                                        nice=int(p("retune_worker_nice").value))
         self.logger = node.get_logger()
@@ -123,7 +124,7 @@ class ObserverHealth:
     """model_node: the drift tracked on (measured d, applied voltage) with the controller's window fit
     (:class:`DriftTracking` off the callback: :class:`BackgroundRetune`), and the prediction error statistics.
 
-    Raises ValueError for an unknown ``window_fit_worker``.
+    Raises ParameterError (a ValueError) for an unknown ``window_fit_worker``.
     """
 
     def __init__(self, node, params, sample_period_s: float):
@@ -134,7 +135,7 @@ class ObserverHealth:
                                       float(p("window_fit_period_s").value), enabled=self.enabled)
         mode = str(p("window_fit_worker").value)
         if mode not in RETUNE_MODES:
-            raise ValueError(f"parameter 'window_fit_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
+            raise ParameterError(f"parameter 'window_fit_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
         self.fits = BackgroundRetune(self.tracking, mode, float(p("window_fit_timeout_s").value), nice=10)
         self.monitor = HealthMonitor(thresholds_from(node))
         self.errors = PredictionErrorStats()   # since the last status (each report clears it)
