@@ -320,9 +320,11 @@ def step_rest_s(params: MembraneParameters, limits: PlanLimits | None = None) ->
     return record_settle(params, limits or PlanLimits(), "rest").settle_s
 
 
-def _settle_fields(settle: SettleTime) -> dict:
-    warning = settle.warning() or ("" if math.isfinite(settle.amplitude_m) else
-                                   f"no static equilibrium at {settle.voltage_V:.0f} V: held {settle.settle_s:.3g} s")
+def _settle_fields(settle: SettleTime, what: str = "") -> dict:
+    what = what or f"the hold at {settle.voltage_V:.0f} V ({settle.mass_kg * 1e3:.3g} g)"
+    warning = settle.warning(what) or ("" if math.isfinite(settle.amplitude_m) else
+                                       f"{what}: no static equilibrium at {settle.voltage_V:.0f} V, held "
+                                       f"{settle.settle_s:.3g} s; the record may be measured before it settled")
     return {"settle_s": settle.settle_s, "time_constant_s": settle.time_constant_s, "settle_warning": warning}
 
 
@@ -335,8 +337,9 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
     shapes = [(a * umax, 0.0) for a in limits.amplitude_fractions]
     if limits.offsets:
         shapes.append((umax / 2, umax / 2))
-    settles = {shape: _settle_fields(record_settle(params, limits, "sine", amplitude_V=shape[0], offset_V=shape[1]))
-               for shape in shapes}
+    settles = {(a, o): _settle_fields(record_settle(params, limits, "sine", amplitude_V=a, offset_V=o),
+                                      f"the settle of the {a:.0f} V{f' + {o:.0f} V offset' if o else ''} sines")
+               for a, o in shapes}
     for f in _frequency_grid(params, limits):
         for amp, off in shapes:
             if amp * 2 * math.pi * f > limits.slew_rate_V_per_s:
@@ -344,7 +347,7 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
             dur, n = sine_record_cost(limits, float(f), settles[(amp, off)]["settle_s"])
             out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
                                        measured_samples=n, **settles[(amp, off)]))
-    rest = _settle_fields(record_settle(params, limits, "rest"))
+    rest = _settle_fields(record_settle(params, limits, "rest"), "the rest at 0 V before a step")
     for a in limits.step_fractions:
         out.append(CandidateRecord("step", rest["settle_s"] + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
                                    final_V=float(a * umax), **rest))

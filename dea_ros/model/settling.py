@@ -69,18 +69,19 @@ class SettleTime:
             return self.amplitude_m
         return self.amplitude_m * math.exp(-self.settle_s / self.time_constant_s)
 
-    def warning(self) -> str:
-        """A plain warning when the cap bites ('' otherwise)."""
+    def warning(self, what: str = "") -> str:
+        """A plain warning when the cap bites ('' otherwise); ``what``: the hold's name (default: the hold at
+        its voltage and mass)."""
         if not self.capped:
             return ""
         if not math.isfinite(self.time_constant_s):
             why = "the membrane is not stable there (an eigenvalue of the linearisation has Re >= 0)"
         else:
-            why = (f"the slowest time constant is {self.time_constant_s:.3g} s: settling to "
-                   f"{self.tolerance_m * 1e9:.3g} nm needs {self.uncapped_s:.3g} s; about "
-                   f"{self.residual_m * 1e9:.3g} nm of the transient is left")
-        return (f"the hold at {self.voltage_V:.0f} V ({self.mass_kg * 1e3:.3g} g) is capped at {self.cap_s:.3g} s: "
-                f"{why}; the record is measured before the membrane has settled")
+            why = (f"its slowest time constant is {self.time_constant_s:.3g} s: settling to "
+                   f"{self.tolerance_m * 1e9:.3g} nm needs {self.uncapped_s:.3g} s; up to "
+                   f"{self.residual_m * 1e6:.3g} um of the transient is left")
+        what = what or f"the hold at {self.voltage_V:.0f} V ({self.mass_kg * 1e3:.3g} g)"
+        return f"{what} is capped at {self.cap_s:.3g} s: {why}; the record is measured before the membrane has settled"
 
 
 def settle_time(params: MembraneParameters, voltage_V: float, from_voltages_V: Sequence[float] = (0.0,),
