@@ -32,6 +32,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench_coverage_family import truth  # noqa: E402
 from machine_info import machine  # noqa: E402
 
 from dea_ros.errors import PlanningError  # noqa: E402
@@ -43,7 +44,8 @@ from dea_ros.model import MembraneParameters, preset, slowest_time_constant_s, s
 from dea_ros.solvers.integrate import simulate_held  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-NAMES = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa")
+NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa", "eps_r", "k1_Pa", "eta1_Pa_s",
+         "eta2_Pa_s")
 
 
 def membranes() -> list:
@@ -97,7 +99,7 @@ def static_check(rows: list, dt: float = 0.02) -> list:
 
 def _first_fit(p, limits: PlanLimits) -> FirstFit:
     """The Fisher information of quick_adaptive's first pass at the true parameters (module docstring)."""
-    values = np.array([p.relative_permittivity, p.k1_Pa, p.eta1_Pa_s, p.eta2_Pa_s, 1.0, 1.0, 1.0])
+    values = np.array([truth(p, n) for n in NAMES])
     probe = FirstFit(p, NAMES, values, np.eye(len(NAMES)), 1.0, 1e-6, 1e-6 / math.sqrt(1000.0))
     m = p.mass_kg
     recs = [CandidateRecord("static", 4.0, m, voltage_V=u, measured_samples=1000) for u in (0.0, 2000, 2250, 2500)]

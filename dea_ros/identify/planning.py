@@ -492,7 +492,13 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
         after = _widths(first, info)
         picks.append(PlannedRecord(c, gain, rate, dict(zip(first.names, map(float, after)))))
     after = _widths(first, info)
-    if not picks:
+    cheapest = min((c for c, _g in information), key=lambda c: c.duration_s)
+    if not picks and cheapest.duration_s > budget_s:
+        notes.append(f"every candidate takes longer than the {budget_s:g} s budget with its hold until it settles "
+                     f"(the cheapest, {cheapest.label()}, {cheapest.duration_s:.1f} s, held {cheapest.settle_s:.1f} "
+                     "s): raise the budget, or cap the holds (PlanLimits.max_settle_s, a protocol's "
+                     "adaptive_max_settle_s) and measure unsettled")
+    elif not picks:
         notes.append("no candidate within the budget shrinks the target intervals")
     notes += list(dict.fromkeys(p.record.settle_warning for p in picks if p.record.settle_warning))
     return ExperimentPlan(first.names, targets, criterion, float(budget_s), dict(zip(first.names, map(float, before))),
