@@ -289,7 +289,8 @@ def _frequency_grid(params: MembraneParameters, limits: PlanLimits) -> np.ndarra
 
 
 def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, voltage_V: float = 0.0,
-                  amplitude_V: float = 0.0, offset_V: float = 0.0, mass_kg: float | None = None) -> SettleTime:
+                  amplitude_V: float = 0.0, offset_V: float = 0.0, mass_kg: float | None = None,
+                  orbit_time_constant_s: float = 0.0) -> SettleTime:
     """How long a record is held before it is measured (:func:`~dea_ros.model.settling.settle_time`: the
     slowest time constant of the linearised model at the record's operating point x ln(transient /
     ``limits.settle_tolerance_m``), the transient bounded by the static displacement jump from 0 V or
@@ -299,7 +300,10 @@ def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, vol
     * ``"static"``: at ``voltage_V`` and ``mass_kg``, at least ``limits.static_hold_s`` less the measured
       ``limits.static_measure_s`` (the protocol's hold_s = settle + measure);
     * ``"sine"``: at the mean u^2 (u_eff = sqrt(amplitude^2 / 2 + offset^2): the creep sees the mean
-      Maxwell pressure), at least ``limits.settle_s``.
+      Maxwell pressure), or the periodic orbit's own slowest time constant where it is slower
+      (``orbit_time_constant_s``, from its Floquet multipliers: near a resonance or a fold the approach
+      to the orbit is slower than any time constant at rest; :func:`_orbit_time_constants`), at least
+      ``limits.settle_s``.
 
     Where eq. 20 has no equilibrium at the operating point the cap is held, with a warning."""
     umax = limits.max_voltage_V
@@ -308,10 +312,29 @@ def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, vol
                 "sine": (math.sqrt(amplitude_V ** 2 / 2 + offset_V ** 2), limits.settle_s)}[kind]
     cap = max(limits.max_settle_s, floor)
     try:
-        return settle_time(params, u, (0.0, umax), limits.settle_tolerance_m, cap, floor, mass_kg)
+        return settle_time(params, u, (0.0, umax), limits.settle_tolerance_m, cap, floor, mass_kg,
+                           orbit_time_constant_s)
     except DeaRosError:
         return SettleTime(u, params.mass_kg if mass_kg is None else float(mass_kg), math.inf, math.nan,
                           limits.settle_tolerance_m, math.inf, cap, cap)
+
+
+def _orbit_time_constants(params: MembraneParameters, amplitude_V: float, offset_V: float, freqs) -> dict:
+    """{frequency (rounded to mHz): the slowest time constant of the periodic orbits there (s; the slowest
+    branch where there are several)} from a harmonic-balance sweep with Floquet multipliers; {} when the
+    sweep fails (the time constant at rest is used then)."""
+    try:
+        sweep = frequency_sweep(params, SinePeriodic(amplitude_V, 1.0, offset_V), np.asarray(freqs, float),
+                                n_harmonics=8, branch_switching=False, realised=False)
+    except (DeaRosError, ArithmeticError, ValueError):
+        return {}
+    out: dict = {}
+    for pt in sweep.points:
+        tau = pt.solution.slowest_time_constant_s if pt.solution is not None else float("nan")
+        if tau == tau:
+            key = round(float(pt.frequency_Hz), 3)
+            out[key] = max(out.get(key, 0.0), tau)
+    return out
 
 
 def step_rest_s(params: MembraneParameters, limits: PlanLimits | None = None) -> float:
@@ -337,16 +360,20 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
     shapes = [(a * umax, 0.0) for a in limits.amplitude_fractions]
     if limits.offsets:
         shapes.append((umax / 2, umax / 2))
-    settles = {(a, o): _settle_fields(record_settle(params, limits, "sine", amplitude_V=a, offset_V=o),
-                                      f"the settle of the {a:.0f} V{f' + {o:.0f} V offset' if o else ''} sines")
-               for a, o in shapes}
-    for f in _frequency_grid(params, limits):
-        for amp, off in shapes:
-            if amp * 2 * math.pi * f > limits.slew_rate_V_per_s:
-                continue
-            dur, n = sine_record_cost(limits, float(f), settles[(amp, off)]["settle_s"])
-            out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
-                                       measured_samples=n, **settles[(amp, off)]))
+    grid = _frequency_grid(params, limits)
+    for amp, off in shapes:
+        what = f"the settle of the {amp:.0f} V{f' + {off:.0f} V offset' if off else ''} sine"
+        at_rest = record_settle(params, limits, "sine", amplitude_V=amp, offset_V=off)
+        freqs = [float(f) for f in grid if amp * 2 * math.pi * f <= limits.slew_rate_V_per_s]
+        orbit = _orbit_time_constants(params, amp, off, freqs) if freqs else {}
+        for f in freqs:
+            tau = orbit.get(round(f, 3), 0.0)
+            settle = at_rest if not tau > at_rest.time_constant_s else \
+                record_settle(params, limits, "sine", amplitude_V=amp, offset_V=off, orbit_time_constant_s=tau)
+            fields = _settle_fields(settle, f"{what} at {f:.3g} Hz")
+            dur, n = sine_record_cost(limits, f, fields["settle_s"])
+            out.append(CandidateRecord("sine", dur, params.mass_kg, f, float(amp), float(off), measured_samples=n,
+                                       **fields))
     rest = _settle_fields(record_settle(params, limits, "rest"), "the rest at 0 V before a step")
     for a in limits.step_fractions:
         out.append(CandidateRecord("step", rest["settle_s"] + limits.step_pre_s + limits.step_hold_s, params.mass_kg,

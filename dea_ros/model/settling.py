@@ -86,15 +86,17 @@ class SettleTime:
 
 def settle_time(params: MembraneParameters, voltage_V: float, from_voltages_V: Sequence[float] = (0.0,),
                 tolerance_m: float = 2e-9, cap_s: float = 60.0, min_s: float = 0.0,
-                mass_kg: float | None = None) -> SettleTime:
+                mass_kg: float | None = None, slower_s: float = 0.0) -> SettleTime:
     """How long to hold ``voltage_V`` (V) at ``mass_kg`` (default ``params.mass_kg``) after arriving from
     any of ``from_voltages_V`` (relaxed there) until the transient is below ``tolerance_m`` (module
     docstring): tau ln(A0 / tol), A0 the largest jump of the static displacement, at least ``min_s``,
-    at most ``cap_s``. NoEquilibriumError where eq. 20 has no solution at ``voltage_V``."""
+    at most ``cap_s``. ``slower_s``: a time constant known otherwise (s; a periodic orbit's, from its Floquet
+    multipliers: :attr:`~dea_ros.solvers.periodic_solution.PeriodicSolution.slowest_time_constant_s`), used
+    where it is the larger. NoEquilibriumError where eq. 20 has no solution at ``voltage_V``."""
     if not (tolerance_m > 0 and cap_s > 0 and min_s >= 0):
         raise ValueError("settle_time: tolerance_m and cap_s must be positive, min_s non-negative")
     p = params if mass_kg is None else params.replace(mass_kg=float(mass_kg))
-    tau = slowest_time_constant_s(p, voltage_V)
+    tau = max(slowest_time_constant_s(p, voltage_V), float(slower_s) if slower_s == slower_s else 0.0)
     d = static_equilibrium(p, np.array([float(voltage_V), *map(float, from_voltages_V)])).displacement_m
     amplitude = float(np.max(np.abs(d[1:] - d[0]))) if d.size > 1 else 0.0
     if not math.isfinite(tau):
