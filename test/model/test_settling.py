@@ -6,7 +6,9 @@ of the tolerance agrees to 0.1 nm). Held for the planned time (record_settle: ta
 displacement is within the tolerance of the static equilibrium (eq. 20) over the whole measurement, and
 after the old fixed hold (4 s, 3 s of it before the 1 s measurement) it is microns away. The time constant
 is checked against the decay rate fitted to the integrated tail (independent of the eigenvalues and of
-the static solve: the differences of successive samples decay as exp(-t / tau)).
+the static solve: the differences of successive samples decay as exp(-t / tau)). Near resonance a sine's
+approach to its orbit is slower than any time constant at rest: the orbit's (Floquet multipliers) is checked
+against the d_rms of whole periods integrated from rest, and the planner's sine settle follows it.
 """
 from __future__ import annotations
 
@@ -17,7 +19,9 @@ import pytest
 
 from dea_ros.identify.planning import PlanLimits, candidate_records, record_settle
 from dea_ros.model import preset, settle_time, slowest_time_constant_s, static_equilibrium
+from dea_ros.solvers.inputs import SinePeriodic
 from dea_ros.solvers.integrate import simulate_held
+from dea_ros.solvers.sweep import frequency_sweep
 
 DT = 0.02        # s, the held voltage's update period (the samples of the integrated response)
 LEVEL_V = 2500.0
@@ -83,3 +87,26 @@ def test_settle_time_states_its_cap_and_the_planner_holds_each_level_its_own_tim
         assert c.duration_s == pytest.approx(c.settle_s + limits.static_measure_s)
     step = next(c for k, c in recs.items() if k[0] == "step")
     assert step.settle_s == pytest.approx(record_settle(p, limits, "rest").settle_s) and step.settle_s > 20.0
+
+
+def test_near_resonance_a_sine_settles_at_its_orbits_rate_slower_than_at_rest():
+    p, f, u = _slow_membrane(), 9.0, 2500.0
+    sweep = frequency_sweep(p, SinePeriodic(u, 1.0), np.array([f]), n_harmonics=8, branch_switching=False,
+                            realised=False)
+    tau = max(pt.solution.slowest_time_constant_s for pt in sweep.points)
+    assert tau > 1.3 * slowest_time_constant_s(p, u / math.sqrt(2))
+    # the d_rms of whole periods from rest (held at 1 kHz) approaches its settled value at that rate
+    rate = 1000.0
+    t = np.arange(int(70 * rate)) / rate
+    d = simulate_held(p, u * np.sin(2 * np.pi * f * t), 1.0 / rate).displacement_m
+    d0 = float(static_equilibrium(p, 0.0).displacement_m)
+    per = int(round(rate / f * 9))       # 9 periods = 1 s exactly at 1 kHz
+
+    def rms(t0):
+        k = int(round(t0 * rate))
+        return math.sqrt(float(np.mean((d[k:k + per] - d0) ** 2)))
+    err = [rms(t0) - rms(65.0) for t0 in (15.0, 25.0)]
+    assert -10.0 / math.log(err[1] / err[0]) == pytest.approx(tau, rel=0.1)
+    planned = record_settle(p, PlanLimits(), "sine", amplitude_V=u, orbit_time_constant_s=tau)
+    at_rest = record_settle(p, PlanLimits(), "sine", amplitude_V=u)
+    assert planned.time_constant_s == tau and planned.settle_s > at_rest.settle_s
