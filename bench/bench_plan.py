@@ -10,7 +10,8 @@ phase), 1 um laser noise and the ILD1320 quantisation; never from the harmonic b
 * two passes: the same static points and step with the paper's 4 frequencies, identified; the planner
   (dea_ros.identify.planning.plan_experiments, default criterion and targets) then picks sines
   (frequency x 1500/2000/2500 V, no offset: the synthetic generator makes no offset records) and
-  steps (0 -> 1500/2000/2500 V, each after a rest of five creep times) within a budget equal to the
+  steps (0 -> 1500/2000/2500 V, each after the rest step_rest_s gives: five creep times until session 13, now the
+  slowest time constant x ln(transient / 3 nm), dea_ros.model.settling) within a budget equal to the
   experiment time of the 13 sine records the one-pass protocol has beyond the 4 (each sine record
   costs 8 s of settling + 2 s measured, whole periods; a step 0.2 s + 4 s + its rest); their data
   are synthesised the same way (another noise seed) and everything is identified again.

@@ -22,14 +22,16 @@ def _pct(w: float) -> str:
 
 
 def plan_text(plan) -> str:
-    """The plan as text: the picks in order with their cost, then the widths before/after."""
+    """The plan as text: the picks in order with their cost (with the hold before the measurement and the slowest
+    time constant it comes from), then the widths before/after."""
     lines = [f"experiment plan from {plan.source} (criterion {plan.criterion}, targets "
              f"{', '.join(plan.targets)}): {len(plan.picks)} records, {plan.total_s:.1f} s of the "
              f"{plan.budget_s:g} s budget, chosen among {plan.n_candidates} candidates"]
     for k, p in enumerate(plan.picks, 1):
         r = p.record
         eta = [f"{_SHORT.get(n, n)} {_pct(p.widths_after[n])}" for n in plan.targets if n in p.widths_after]
-        lines.append(f"  {k}. {r.label():<36} {r.duration_s:6.1f} s  -> {', '.join(eta)}")
+        lines.append(f"  {k}. {r.label():<36} {r.duration_s:6.1f} s (held {r.settle_s:.1f} s, slowest time "
+                     f"constant {r.time_constant_s:.3g} s)  -> {', '.join(eta)}")
     lines.append("expected 95 % interval half-widths (relative; log scale for k1, eta1, eta2):")
     lines.append(f"  {'parameter':<18} {'now':>12} {'after plan':>12}")
     for n in _SHOW:

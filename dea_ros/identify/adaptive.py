@@ -56,13 +56,13 @@ def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> P
     """The planner's limits for a second pass of ``base``: no voltage above the first pass's peak (nor
     ``max_voltage_V``, the rig's maximum, where given), and every record as long as the first pass's of
     its kind (its sines' settle/measure with at least two periods measured, its step's pre/hold, its
-    static hold/measure; a step after at least the rest at 0 V the first pass gave its step: the creep
-    settles in five creep times, but the ringing of the mass may take longer, and the protocol's author
-    chose that rest for it)."""
+    static hold/measure; a step after at least the rest at 0 V the first pass gave its step), held longer
+    where the fitted membrane needs it to settle (:func:`~.planning.record_settle`), at most the protocol's
+    ``adaptive_max_settle_s``."""
     schedule = base.schedule()
     peak = _peak_V(schedule)
     kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak,
-          "step_rest_min_s": max(2.0, _rest_before_step_s(schedule))}
+          "step_rest_min_s": max(2.0, _rest_before_step_s(schedule)), "max_settle_s": base.adaptive_max_settle_s}
     fields = {"sine": (("settle_s", "settle_s"), ("measure_s", "measure_s")),
               "step": (("pre_s", "step_pre_s"), ("hold_s", "step_hold_s")),
               "static": (("hold_s", "static_hold_s"), ("measure_s", "static_measure_s"))}

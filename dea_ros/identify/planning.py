@@ -27,6 +27,12 @@ target parameters (default: eps_r, k1, eta1, eta2, sigma_h''(1)):
 The result (:class:`ExperimentPlan`) holds the picks with the expected widths after each, and the
 widths and the eta1/eta2 correlation before and after; :func:`plan_protocol` turns the picks into
 protocol segments the identifier node runs (:mod:`~dea_ros.identify.protocols`).
+
+Every record is held before it is measured until its transient is below ``PlanLimits.settle_tolerance_m``
+(:func:`record_settle`): the slowest time constant of the model linearised at the record's operating
+point (:func:`~dea_ros.model.settling.settle_time`; on a slow membrane several creep times eta1/k1)
+x ln(transient / tolerance), at least the fixed holds of :class:`PlanLimits`, at most ``max_settle_s``
+(then the plan's notes say the record is measured unsettled). A record's cost includes its hold.
 """
 from __future__ import annotations
 
@@ -38,6 +44,7 @@ import numpy as np
 
 from ..errors import DeaRosError, PlanningError
 from ..model.parameters import MembraneParameters
+from ..model.settling import SettleTime, settle_time
 from ..model.yaml_files import read_yaml_mapping
 from ..solvers.inputs import SinePeriodic
 from ..solvers.sweep import frequency_sweep
@@ -49,8 +56,8 @@ from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
            "first_fit_from_result", "fit_widths", "candidate_records", "candidate_information", "plan_experiments",
-           "plan_protocol", "step_rest_s", "sine_record_cost", "PlanningError", "MIN_DECREASE", "DEFAULT_TARGETS",
-           "WIDTH_CAP", "T95"]
+           "plan_protocol", "step_rest_s", "record_settle", "sine_record_cost", "PlanningError", "MIN_DECREASE",
+           "DEFAULT_TARGETS", "WIDTH_CAP", "T95"]
 
 DEFAULT_TARGETS = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
 #: relative 95 % half-width a direction no record sees counts as (100 x the value)
@@ -145,20 +152,25 @@ class PlanLimits:
     step_fractions: tuple = (0.6, 0.8, 1.0)          # step levels from 0 V
     static_fractions: tuple = (0.5, 0.7, 0.9, 1.0)   # static points at the dynamic mass
     other_masses_kg: tuple = ()                      # masses the rig has besides the dynamic one
-    settle_s: float = 8.0                            # sine: transient discarded (whole periods)
+    settle_s: float = 8.0                            # sine: transient discarded, at least (whole periods)
     measure_s: float = 3.0                           # sine: measured (whole periods)
     step_pre_s: float = 0.5
     step_hold_s: float = 5.0
     step_rest_min_s: float = 2.0                     # rest at 0 V before a step, at least (step_rest_s)
-    static_hold_s: float = 4.0
+    static_hold_s: float = 4.0                       # static hold, at least (its last static_measure_s measured)
     static_measure_s: float = 1.0
     sample_rate_Hz: float = 1000.0
     baseline_samples: int = 1000
+    #: what may be left of a transient when a record is measured (record_settle): 3 nm, a tenth of the
+    #: standard error of a static point's mean (1 um laser noise, the ILD1320's, over 1 s at 1 kHz: 32 nm)
+    settle_tolerance_m: float = 3e-9
+    #: no hold longer than this; where the cap bites the plan says so (its notes)
+    max_settle_s: float = 60.0
 
     def __post_init__(self):
         for name in ("max_voltage_V", "slew_rate_V_per_s", "min_frequency_Hz", "max_frequency_Hz", "settle_s",
                      "measure_s", "step_pre_s", "step_hold_s", "step_rest_min_s", "static_hold_s", "static_measure_s",
-                     "sample_rate_Hz"):
+                     "sample_rate_Hz", "settle_tolerance_m", "max_settle_s"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise PlanningError(f"plan limits: {name} must be a positive number, got {v!r}")
@@ -182,6 +194,11 @@ class CandidateRecord:
     final_V: float = float("nan")   # step from 0 V
     voltage_V: float = float("nan")  # static point
     measured_samples: int = 0        # samples the sine's RMS or the static mean is measured over
+    #: held before the record is measured (the rest before a step, a static point's hold, a sine's settle),
+    #: from the slowest time constant at its operating point (record_settle), and that time constant
+    settle_s: float = float("nan")
+    time_constant_s: float = float("nan")
+    settle_warning: str = ""         # the cap bit (or no equilibrium): the record is measured unsettled
 
     def label(self) -> str:
         if self.kind == "sine":
@@ -192,7 +209,8 @@ class CandidateRecord:
         return f"static {self.voltage_V:.0f} V at {self.mass_kg * 1e3:.3g} g"
 
     def to_dict(self) -> dict:
-        out = {"kind": self.kind, "label": self.label(), "duration_s": self.duration_s, "mass_kg": self.mass_kg}
+        out = {"kind": self.kind, "label": self.label(), "duration_s": self.duration_s, "mass_kg": self.mass_kg,
+               "settle_s": self.settle_s, "time_constant_s": self.time_constant_s}
         if self.kind == "sine":
             out.update(frequency_Hz=self.frequency_Hz, amplitude_V=self.amplitude_V, offset_V=self.offset_V)
         elif self.kind == "step":
@@ -246,10 +264,11 @@ class ExperimentPlan:
                 "picks": [p.to_dict() for p in self.picks], "notes": list(self.notes)}
 
 
-def sine_record_cost(limits: PlanLimits, f: float) -> tuple:
-    """(experiment time, measured samples) of one sine record, whole periods as the protocol runs it."""
+def sine_record_cost(limits: PlanLimits, f: float, settle_s: float | None = None) -> tuple:
+    """(experiment time, measured samples) of one sine record, whole periods as the protocol runs it;
+    ``settle_s`` (default ``limits.settle_s``): the transient discarded before it."""
     periods = max(1, math.ceil(limits.measure_s * f - 1e-9))
-    settle = math.ceil(limits.settle_s * f - 1e-9) / f
+    settle = math.ceil((limits.settle_s if settle_s is None else settle_s) * f - 1e-9) / f
     return settle + periods / f, int(round(periods / f * limits.sample_rate_Hz))
 
 
@@ -269,11 +288,67 @@ def _frequency_grid(params: MembraneParameters, limits: PlanLimits) -> np.ndarra
     return np.array(sorted({round(float(f), 3) for f in grid}))
 
 
-def step_rest_s(params: MembraneParameters, min_s: float = 2.0) -> float:
-    """Rest at 0 V before a step so it starts from rest as the step fit assumes: five creep times
-    eta1/k1, at least ``min_s`` (the ringing of the mass decays too: :attr:`PlanLimits.step_rest_min_s`),
-    at most 60 s or ``min_s`` (a step costs it too)."""
-    return float(min(max(5.0 * params.eta1_Pa_s / params.k1_Pa, min_s), max(60.0, min_s)))
+def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, voltage_V: float = 0.0,
+                  amplitude_V: float = 0.0, offset_V: float = 0.0, mass_kg: float | None = None,
+                  orbit_time_constant_s: float = 0.0) -> SettleTime:
+    """How long a record is held before it is measured (:func:`~dea_ros.model.settling.settle_time`: the
+    slowest time constant of the linearised model at the record's operating point x ln(transient /
+    ``limits.settle_tolerance_m``), the transient bounded by the static displacement jump from 0 V or
+    ``limits.max_voltage_V``, at most ``limits.max_settle_s``):
+
+    * ``"rest"`` before a step: at 0 V, at least ``limits.step_rest_min_s``;
+    * ``"static"``: at ``voltage_V`` and ``mass_kg``, at least ``limits.static_hold_s`` less the measured
+      ``limits.static_measure_s`` (the protocol's hold_s = settle + measure);
+    * ``"sine"``: at the mean u^2 (u_eff = sqrt(amplitude^2 / 2 + offset^2): the creep sees the mean
+      Maxwell pressure), or the periodic orbit's own slowest time constant where it is slower
+      (``orbit_time_constant_s``, from its Floquet multipliers: near a resonance or a fold the approach
+      to the orbit is slower than any time constant at rest; :func:`_orbit_time_constants`), at least
+      ``limits.settle_s``.
+
+    Where eq. 20 has no equilibrium at the operating point the cap is held, with a warning."""
+    umax = limits.max_voltage_V
+    u, floor = {"rest": (0.0, limits.step_rest_min_s),
+                "static": (voltage_V, max(limits.static_hold_s - limits.static_measure_s, 0.0)),
+                "sine": (math.sqrt(amplitude_V ** 2 / 2 + offset_V ** 2), limits.settle_s)}[kind]
+    cap = max(limits.max_settle_s, floor)
+    try:
+        return settle_time(params, u, (0.0, umax), limits.settle_tolerance_m, cap, floor, mass_kg,
+                           orbit_time_constant_s)
+    except DeaRosError:
+        return SettleTime(u, params.mass_kg if mass_kg is None else float(mass_kg), math.inf, math.nan,
+                          limits.settle_tolerance_m, math.inf, cap, cap)
+
+
+def _orbit_time_constants(params: MembraneParameters, amplitude_V: float, offset_V: float, freqs) -> dict:
+    """{frequency (rounded to mHz): the slowest time constant of the periodic orbits there (s; the slowest
+    branch where there are several)} from a harmonic-balance sweep with Floquet multipliers; {} when the
+    sweep fails (the time constant at rest is used then)."""
+    try:
+        sweep = frequency_sweep(params, SinePeriodic(amplitude_V, 1.0, offset_V), np.asarray(freqs, float),
+                                n_harmonics=8, branch_switching=False, realised=False)
+    except (DeaRosError, ArithmeticError, ValueError):
+        return {}
+    out: dict = {}
+    for pt in sweep.points:
+        tau = pt.solution.slowest_time_constant_s if pt.solution is not None else float("nan")
+        if tau == tau:
+            key = round(float(pt.frequency_Hz), 3)
+            out[key] = max(out.get(key, 0.0), tau)
+    return out
+
+
+def step_rest_s(params: MembraneParameters, limits: PlanLimits | None = None) -> float:
+    """Rest at 0 V before a step so it starts from rest as the step fit assumes (:func:`record_settle`,
+    ``"rest"``), s."""
+    return record_settle(params, limits or PlanLimits(), "rest").settle_s
+
+
+def _settle_fields(settle: SettleTime, what: str = "") -> dict:
+    what = what or f"the hold at {settle.voltage_V:.0f} V ({settle.mass_kg * 1e3:.3g} g)"
+    warning = settle.warning(what) or ("" if math.isfinite(settle.amplitude_m) else
+                                       f"{what}: no static equilibrium at {settle.voltage_V:.0f} V, held "
+                                       f"{settle.settle_s:.3g} s; the record may be measured before it settled")
+    return {"settle_s": settle.settle_s, "time_constant_s": settle.time_constant_s, "settle_warning": warning}
 
 
 def candidate_records(params: MembraneParameters, limits: PlanLimits | None = None) -> list:
@@ -285,23 +360,31 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
     shapes = [(a * umax, 0.0) for a in limits.amplitude_fractions]
     if limits.offsets:
         shapes.append((umax / 2, umax / 2))
-    for f in _frequency_grid(params, limits):
-        dur, n = sine_record_cost(limits, float(f))
-        for amp, off in shapes:
-            if amp * 2 * math.pi * f > limits.slew_rate_V_per_s:
-                continue
-            out.append(CandidateRecord("sine", dur, params.mass_kg, float(f), float(amp), float(off),
-                                       measured_samples=n))
-    rest = step_rest_s(params, limits.step_rest_min_s)
+    grid = _frequency_grid(params, limits)
+    for amp, off in shapes:
+        what = f"the settle of the {amp:.0f} V{f' + {off:.0f} V offset' if off else ''} sine"
+        at_rest = record_settle(params, limits, "sine", amplitude_V=amp, offset_V=off)
+        freqs = [float(f) for f in grid if amp * 2 * math.pi * f <= limits.slew_rate_V_per_s]
+        orbit = _orbit_time_constants(params, amp, off, freqs) if freqs else {}
+        for f in freqs:
+            tau = orbit.get(round(f, 3), 0.0)
+            settle = at_rest if not tau > at_rest.time_constant_s else \
+                record_settle(params, limits, "sine", amplitude_V=amp, offset_V=off, orbit_time_constant_s=tau)
+            fields = _settle_fields(settle, f"{what} at {f:.3g} Hz")
+            dur, n = sine_record_cost(limits, f, fields["settle_s"])
+            out.append(CandidateRecord("sine", dur, params.mass_kg, f, float(amp), float(off), measured_samples=n,
+                                       **fields))
+    rest = _settle_fields(record_settle(params, limits, "rest"), "the rest at 0 V before a step")
     for a in limits.step_fractions:
-        out.append(CandidateRecord("step", rest + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
-                                   final_V=float(a * umax)))
+        out.append(CandidateRecord("step", rest["settle_s"] + limits.step_pre_s + limits.step_hold_s, params.mass_kg,
+                                   final_V=float(a * umax), **rest))
     n_static = int(round(limits.static_measure_s * limits.sample_rate_Hz))
     levels = [(params.mass_kg, a * umax) for a in limits.static_fractions]
     levels += [(float(m), u) for m in limits.other_masses_kg for u in (0.0, umax)]
     for m, u in levels:
-        out.append(CandidateRecord("static", limits.static_hold_s, float(m), voltage_V=float(u),
-                                   measured_samples=n_static))
+        hold = _settle_fields(record_settle(params, limits, "static", voltage_V=u, mass_kg=m))
+        out.append(CandidateRecord("static", hold["settle_s"] + limits.static_measure_s, float(m), voltage_V=float(u),
+                                   measured_samples=n_static, **hold))
     return out
 
 
@@ -436,8 +519,15 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
         after = _widths(first, info)
         picks.append(PlannedRecord(c, gain, rate, dict(zip(first.names, map(float, after)))))
     after = _widths(first, info)
-    if not picks:
+    cheapest = min((c for c, _g in information), key=lambda c: c.duration_s)
+    if not picks and cheapest.duration_s > budget_s:
+        notes.append(f"every candidate takes longer than the {budget_s:g} s budget with its hold until it settles "
+                     f"(the cheapest, {cheapest.label()}, {cheapest.duration_s:.1f} s, held {cheapest.settle_s:.1f} "
+                     "s): raise the budget, or cap the holds (PlanLimits.max_settle_s, a protocol's "
+                     "adaptive_max_settle_s) and measure unsettled")
+    elif not picks:
         notes.append("no candidate within the budget shrinks the target intervals")
+    notes += list(dict.fromkeys(p.record.settle_warning for p in picks if p.record.settle_warning))
     return ExperimentPlan(first.names, targets, criterion, float(budget_s), dict(zip(first.names, map(float, before))),
                           dict(zip(first.names, map(float, after))),
                           _correlations(first, first.information * np.outer(scale, scale)),
@@ -446,8 +536,8 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
 
 def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | None = None) -> Protocol:
     """The planned records as a protocol the identifier node runs (the mass and membrane of ``base``):
-    steps from 0 V after a rest (:func:`step_rest_s`), static levels, sines grouped by amplitude and
-    offset, then 0 V. Static points at
+    steps from 0 V after a rest, static levels, sines grouped by amplitude and offset, then 0 V, each
+    held its record's ``settle_s`` (:func:`record_settle`) before it is measured. Static points at
     another mass cannot be run without changing the mass by hand: they are left out (PlanningError if
     nothing else is left)."""
     limits = limits or PlanLimits()
@@ -456,17 +546,19 @@ def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | Non
     for p in plan.picks:
         r = p.record
         if r.kind == "sine":
-            shapes.setdefault((r.amplitude_V, r.offset_V), []).append(r.frequency_Hz)
+            shapes.setdefault((r.amplitude_V, r.offset_V), []).append(r)
         elif r.kind == "step":
-            segments.append({"kind": "rest", "hold_s": r.duration_s - limits.step_pre_s - limits.step_hold_s})
+            segments.append({"kind": "rest", "hold_s": r.settle_s})
             segments.append({"kind": "step", "initial_V": 0.0, "final_V": r.final_V, "pre_s": limits.step_pre_s,
                              "hold_s": limits.step_hold_s})
         elif abs(r.mass_kg - base.mass_kg) < 1e-9:
-            segments.append({"kind": "static", "voltages_V": [r.voltage_V], "hold_s": limits.static_hold_s,
+            segments.append({"kind": "static", "voltages_V": [r.voltage_V],
+                             "hold_s": r.settle_s + limits.static_measure_s,
                              "measure_s": limits.static_measure_s})
-    for (amp, off), freqs in shapes.items():
-        segments.append({"kind": "sine", "amplitude_V": amp, "offset_V": off, "frequencies_Hz": sorted(freqs),
-                         "settle_s": limits.settle_s, "measure_s": limits.measure_s})
+    for (amp, off), picks in shapes.items():
+        segments.append({"kind": "sine", "amplitude_V": amp, "offset_V": off,
+                         "frequencies_Hz": sorted(r.frequency_Hz for r in picks),
+                         "settle_s": max(r.settle_s for r in picks), "measure_s": limits.measure_s})
     if not segments:
         raise PlanningError("no planned record can run at the protocol's mass")
     segments.append({"kind": "rest", "hold_s": 1.0})

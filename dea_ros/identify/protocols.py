@@ -26,10 +26,14 @@ A protocol YAML (``config/protocols/*.yaml``)::
           hold_s: 1.0
       adaptive: false           # true: after the first fit, plan and run a second pass (below)
       adaptive_budget_s: 60     # experiment time of the second pass
+      adaptive_max_settle_s: 60 # no hold of the second pass longer (the plan warns where it bites)
 
 With ``adaptive: true`` the identifier plans the second pass from its first fit
 (:func:`dea_ros.identify.planning.plan_experiments`) and runs the picks as the segments of
-:func:`dea_ros.identify.planning.plan_protocol`, then identifies from both passes.
+:func:`dea_ros.identify.planning.plan_protocol`, then identifies from both passes. Each planned record is
+held until it has settled (:func:`dea_ros.identify.planning.record_settle`: from the slowest time constant
+of the fitted membrane), at least as long as the first pass's record of its kind, at most
+``adaptive_max_settle_s``.
 
 :class:`Protocol.schedule` expands it into :class:`Segment` objects with absolute start/end
 times (s from the protocol start), each with a ``voltage_at(t)`` function and the measurement
@@ -123,6 +127,7 @@ class Protocol:
     source: str = ""
     adaptive: bool = False          # plan and run a second pass after the first fit
     adaptive_budget_s: float = 60.0  # its experiment time (s)
+    adaptive_max_settle_s: float = 60.0  # no hold of it longer (s): PlanLimits.max_settle_s
 
     @classmethod
     def from_dict(cls, data: Any, source: str = "protocol") -> "Protocol":
@@ -136,16 +141,18 @@ class Protocol:
         mass = _num(data, "mass_kg", source, default=0.003, positive=True)
         if mass > 10:
             raise ProtocolError(f"{source}: mass_kg {mass} looks like grams; kg expected (3 g -> 0.003)")
-        unknown = set(data) - {"name", "membrane", "mass_kg", "segments", "adaptive", "adaptive_budget_s"}
+        unknown = set(data) - {"name", "membrane", "mass_kg", "segments", "adaptive", "adaptive_budget_s",
+                               "adaptive_max_settle_s"}
         if unknown:
             raise ProtocolError(f"{source}: unknown field(s) {sorted(unknown)}; allowed name, membrane, mass_kg, "
-                                "segments, adaptive, adaptive_budget_s")
+                                "segments, adaptive, adaptive_budget_s, adaptive_max_settle_s")
         adaptive = data.get("adaptive", False)
         if not isinstance(adaptive, bool):
             raise ProtocolError(f"{source}: 'adaptive' must be true or false, got {adaptive!r}")
         budget = _num(data, "adaptive_budget_s", source, default=60.0, positive=True)
+        max_settle = _num(data, "adaptive_max_settle_s", source, default=60.0, positive=True)
         proto = cls(str(data.get("name", Path(source).stem)), str(data.get("membrane", "A2")), mass,
-                    tuple(segments), source, adaptive, budget)
+                    tuple(segments), source, adaptive, budget, max_settle)
         proto.schedule()  # validates every segment
         return proto
 
@@ -218,6 +225,7 @@ class Protocol:
         """The protocol as its YAML mapping (``{"protocol": {...}}``)."""
         return {"protocol": {"name": self.name, "membrane": self.membrane, "mass_kg": self.mass_kg,
                              "adaptive": self.adaptive, "adaptive_budget_s": self.adaptive_budget_s,
+                             "adaptive_max_settle_s": self.adaptive_max_settle_s,
                              "segments": [dict(s) for s in self.raw_segments]}}
 
     def write_yaml(self, path) -> Path:

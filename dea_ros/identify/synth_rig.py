@@ -38,9 +38,9 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import IntegrationError
-from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
+from ..model.settling import slowest_time_constant_s
 from ..solvers.integrate import simulate_held
 from .bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
 from .experiments import GEOMETRY_FIELDS
@@ -78,17 +78,10 @@ class RigRecording:
     wall_s: float
 
 
-def _slowest_time_constant_s(params: MembraneParameters, voltage_V: float) -> float:
-    eq = static_equilibrium(params, float(voltage_V))
-    jac = DEAModel.from_parameters(params).jacobian(np.asarray(eq.state, float).reshape(3), float(voltage_V))
-    decay = -np.real(np.linalg.eigvals(np.asarray(jac, float).reshape(3, 3)))
-    return float(1.0 / decay.min()) if decay.min() > 0 else math.inf
-
-
 def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, factor: float = 12.0,
                      static_factor: float = 12.0) -> RigSettleTimes:
     """The holds of :func:`rig_protocol` for ``params`` (module docstring)."""
-    tau = max(_slowest_time_constant_s(params, 0.0), _slowest_time_constant_s(params, amplitude_V / math.sqrt(2)))
+    tau = max(slowest_time_constant_s(params, 0.0), slowest_time_constant_s(params, amplitude_V / math.sqrt(2)))
     return RigSettleTimes(tau, max(3.0, static_factor * tau), max(2.0, factor * tau), max(5.0, factor * tau))
 
 

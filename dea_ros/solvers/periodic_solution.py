@@ -128,6 +128,19 @@ class PeriodicSolution:
         return self.half_period_multipliers if self.half_period_multipliers is not None else self.multipliers
 
     @property
+    def slowest_time_constant_s(self) -> float:
+        """The slowest decay time of a perturbation of the orbit, s: response period / -ln max|multiplier|
+        (the periodic counterpart of :func:`dea_ros.model.settling.slowest_time_constant_s`); inf when it
+        is not stable, NaN without multipliers."""
+        mu, period = self.multipliers, self.response_period_s
+        if mu is None:
+            mu, period = self.half_period_multipliers, self.response_period_s / 2.0
+        if mu is None or not np.all(np.isfinite(mu)):
+            return float("nan")
+        largest = float(np.max(np.abs(mu)))
+        return period / -math.log(largest) if largest < 1.0 else math.inf
+
+    @property
     def stable(self) -> bool | None:
         mu = self.stability_multipliers
         if mu is None:

@@ -139,6 +139,11 @@ def test_limits_follow_the_first_pass():
     # every planned sine has two periods measured at least (pass 1: 1 s measured, quick: 2 s)
     assert limits.min_frequency_Hz == pytest.approx(1.01) and quick.min_frequency_Hz == pytest.approx(0.505)
     assert limits_for_protocol(PASS1, max_voltage_V=2100.0).max_voltage_V == 2100.0
+    # the holds: as long as the membrane needs to settle, at most the protocol's adaptive_max_settle_s
+    assert limits.max_settle_s == 60.0
+    capped = Protocol.from_dict({**PASS1.to_dict()["protocol"], "adaptive_max_settle_s": 5.0})
+    assert limits_for_protocol(capped).max_settle_s == 5.0
+    assert capped.to_dict()["protocol"]["adaptive_max_settle_s"] == 5.0
 
 
 @pytest.fixture(scope="module")

@@ -104,6 +104,11 @@ def test_the_planner_picks_what_shrinks_eta1_and_a_refit_with_the_picks_confirms
     assert after[1] <= SOFTENING.eta1_Pa_s <= after[2]
 
 
+def test_a_budget_shorter_than_every_settled_record_says_so(first):
+    plan = plan_experiments(first["fit"], 5.0, LIMITS, information=first["info"])
+    assert not plan.picks and any("longer than the 5 s budget" in n for n in plan.notes), plan.notes
+
+
 def _plan_of(records) -> ExperimentPlan:
     picks = [PlannedRecord(r, 1.0, 1.0 / r.duration_s, {}) for r in records]
     return ExperimentPlan(("eta1_Pa_s",), ("eta1_Pa_s",), "widths", 100.0, {}, {}, {}, {}, picks, len(picks))
@@ -170,11 +175,14 @@ def test_cli_plan_text_json_protocol_and_exit_codes(first, tmp_path, capsys):
     assert program.main(["plan", "--from", path, "--budget-s", "25", "--fmax", "30"]) == 0
     out = capsys.readouterr().out
     assert "expected 95 % interval half-widths" in out and "eta1_Pa_s" in out and "correlation eta1/eta2" in out
+    assert "slowest time constant" in out and "held" in out
     proto_out = tmp_path / "second.yaml"
     assert program.main(["plan", "--from", path, "--budget-s", "25", "--fmax", "30", "--json",
                          "--protocol-out", str(proto_out)]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["picks"] and data["total_s"] <= 25.0
+    # each pick's hold before its measurement, from the slowest time constant of the fitted membrane
+    assert all(p["settle_s"] >= 2.0 and p["time_constant_s"] > 0 for p in data["picks"])
     assert data["relative_ci95_after"]["eta1_Pa_s"] < data["relative_ci95_before"]["eta1_Pa_s"]
     assert load_protocol(proto_out).schedule(max_voltage_V=2500.0)
     # a first fit that doubts itself: the plan says so

@@ -30,6 +30,7 @@ protocol:
   mass_kg: 0.003
   adaptive: true
   adaptive_budget_s: 3.0
+  adaptive_max_settle_s: 0.3    # the holds of pass 1 (settled holds would need ~15 s each: the plan warns)
   segments:
     - kind: static
       voltages_V: [0, 1500, 2000, 2300]
