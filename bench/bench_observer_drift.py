@@ -1,4 +1,4 @@
-"""model_node's drift tracking before and after issue 23 session 13 (the controller's window fit), side by side.
+"""model_node's drift tracking (issue 23 session 13): the voltage paired a sample late vs at the laser's stamp.
 
 The data: the controller's ordinary operation on the core's simulated rig (bench_drift.py's
 ``operate_with_health``: setpoints across the range every 1.5 s, the controller on the demo's identified
@@ -8,12 +8,15 @@ control/health.py's default thresholds (WARN at 2 % gain / static stiffness, 15 
 3 s persistence), assessed once per second:
 
 * the controller's path (position_controller_node): AdaptiveModel in the loop (EKF + window fit + retune);
-* model_node before: the EKF alone on (measured d, applied voltage) -- ``ModelTracker.update`` per sample;
-* model_node after: DriftTracking on the same pairs (EKF + the controller's window fit every 2 s,
-  absorbed the same way; the node runs the fit off its callbacks, here it runs synchronously).
+* model_node, a sample late (as merged first in session 13): DriftTracking (EKF + the controller's window fit
+  every 2 s, absorbed the same way; the node runs the fit off its callbacks, here synchronously) on
+  (measured d, applied voltage) with the controller's ``voltage_delay_samples=1``;
+* model_node now: the same with ``voltage_delay_samples=0`` (APPLIED_VOLTAGE_DELAY_SAMPLES).
 
-model_node sees the APPLIED voltage (the amplifier's BatteryState), the controller its command: the
-applied voltage at a laser sample is the command of the sample before (``ClosedLoopResult.applied_V``).
+model_node sees the APPLIED voltage (the amplifier's BatteryState), the controller its command. The node
+pairs each laser sample with the output in effect at its stamp (control/voltage_pairing.py), which on the
+simulated rig is ``ClosedLoopResult.applied_V`` sample for sample (the amplifier's output at the sample time;
+checked in test/control/test_voltage_pairing.py); the command acts one sample later, the applied voltage at once.
 
 Run: python bench/bench_observer_drift.py [--seeds 7 8 9] [--seconds 30] [--quiet-s 600]
 """
@@ -33,6 +36,7 @@ from bench_drift import operate_with_health  # noqa: E402
 from machine_info import machine  # noqa: E402
 
 from dea_ros.control import (  # noqa: E402
+    APPLIED_VOLTAGE_DELAY_SAMPLES,
     ControllerConfig,
     DriftTracking,
     HealthMonitor,
@@ -57,12 +61,13 @@ def cases(p):
             ("eta1 x0.3", p.replace(eta1_Pa_s=p.eta1_Pa_s * 0.3), LABELS["creep_time"])]
 
 
-def replay(ident, res, fits: bool, voltage_delay_samples: int = 1):
+def replay(ident, res, fits: bool, voltage_delay_samples: int = APPLIED_VOLTAGE_DELAY_SAMPLES):
     """model_node's path on a recorded run: ([(t, message)] of WARN+ reports, final ratios, fit wall times s,
-    per-sample wall times ns of what the node's laser callback runs: observe (+ due with fits))."""
+    per-sample wall times ns of what the node's laser callback runs: observe (+ due with fits), the fits'
+    extra loop delays s, whether each was informative)."""
     tracking = DriftTracking(ident, TrackerConfig(voltage_delay_samples=voltage_delay_samples))
     mon = HealthMonitor()
-    found, cost, per_sample = [], [], []
+    found, cost, per_sample, delays = [], [], [], []
     clock = time.perf_counter_ns
     for j, (t, d, u) in enumerate(zip(res.time_s, res.measured_m, res.applied_V)):
         t = float(t)
@@ -72,13 +77,24 @@ def replay(ident, res, fits: bool, voltage_delay_samples: int = 1):
         per_sample.append(clock() - t0)
         if window is not None:
             t0 = time.perf_counter()
-            tracking.apply(tracking.prepare(window), t)
+            plan = tracking.prepare(window)
+            tracking.apply(plan, t)
             cost.append(time.perf_counter() - t0)
+            if plan.fit is not None:
+                delays.append((plan.fit.extra_delay_s, plan.fit.delay_informative))
         if j % 1000 == 0:
             rep = mon.assess(t, tracking.tracker.ratios)
             if rep.level >= 1:
                 found.append((t, rep.message))
-    return found, tracking.tracker.ratios, cost, per_sample
+    return found, tracking.tracker.ratios, cost, per_sample, delays
+
+
+def _delays(delays):
+    """The fits' extra loop delay: median ms, informative share."""
+    if not delays:
+        return "-"
+    return (f"{np.median([d for d, _ in delays]) * 1e3:+.2f} ms, "
+            f"{sum(ok for _, ok in delays)}/{len(delays)} informative")
 
 
 def _cell(found, label):
@@ -107,38 +123,31 @@ def main() -> None:
              f"plants: that membrane after the drift; {args.seconds:g} s of ordinary operation per run, seeds "
              f"{', '.join(map(str, args.seeds))}. Per path, on the same samples: first WARN [s] (its first "
              "finding); the first report that names the drift [s]:", "",
-             "| plant | seed | controller (AdaptiveModel) | model_node before (EKF alone) | "
-             "model_node after (DriftTracking) | after: tracked gain / static / k1 / creep time |",
-             "|---|---|---|---|---|---|"]
-    costs, samples = [], [[], []]
-    for name, plant, label in cases(ident):
-        for seed in args.seeds:
-            ctl_found, res = operate_with_health(ident, plant, cfg, rig0, args.seconds, seed)
-            before, _, _, sample_before = replay(ident, res, False)
-            after, ratios, cost, sample_after = replay(ident, res, True)
-            costs += cost
-            samples[0] += sample_before
-            samples[1] += sample_after
-            lines.append(f"| {name} | {seed} | {_cell(ctl_found, label)} | {_cell(before, label)} | "
-                         f"{_cell(after, label)} | " + " / ".join(f"{v:.3f}" for v in ratios.values()) + " |")
-            print(lines[-1], flush=True)
+             "| plant | seed | controller (AdaptiveModel) | model_node, a sample late | model_node, at the stamp | "
+             "tracked gain / static / k1 / creep time: a sample late; at the stamp | fits' extra loop delay "
+             "(median; informative): a sample late; at the stamp |",
+             "|---|---|---|---|---|---|---|"]
+    costs, samples = [], []
+    ratio = lambda r: " / ".join(f"{v:.3f}" for v in r.values())  # noqa: E731
+    runs = [(name, plant, label, seed, args.seconds) for name, plant, label in cases(ident) for seed in args.seeds]
     if args.quiet_s > 0:
-        seed = args.seeds[0] + 1
-        ctl_found, res = operate_with_health(ident, ident, cfg, rig0, args.quiet_s, seed)
-        before = replay(ident, res, False)[0]
-        after, ratios, cost, _ = replay(ident, res, True)
+        runs.append((f"unchanged, {args.quiet_s / 60:g} min", ident, None, args.seeds[0] + 1, args.quiet_s))
+    for name, plant, label, seed, seconds in runs:
+        ctl_found, res = operate_with_health(ident, plant, cfg, rig0, seconds, seed)
+        late, r_late, _, _, d_late = replay(ident, res, True, voltage_delay_samples=1)
+        now, r_now, cost, per_sample, d_now = replay(ident, res, True)
         costs += cost
-        lines.append(f"| unchanged, {args.quiet_s / 60:g} min | {seed} | {len(ctl_found)} WARN reports | "
-                     f"{len(before)} WARN reports | {len(after)} WARN reports | "
-                     + " / ".join(f"{v:.3f}" for v in ratios.values()) + " |")
+        samples += per_sample
+        cells = ([_cell(found, label) for found in (ctl_found, late, now)] if label is not None else
+                 [f"{len(found)} WARN reports" for found in (ctl_found, late, now)])
+        lines.append(f"| {name} | {seed} | " + " | ".join(cells) + f" | {ratio(r_late)}; {ratio(r_now)} | "
+                     f"{_delays(d_late)}; {_delays(d_now)} |")
         print(lines[-1], flush=True)
-    lines += ["", f"Window fit + absorption (DriftTracking.prepare + apply, synchronous here), per fit: median "
-              f"{np.median(costs) * 1e3:.0f} ms, p99 {np.percentile(costs, 99) * 1e3:.0f} ms over {len(costs)} fits "
-              f"({time.perf_counter() - t_start:.0f} s wall for this benchmark). Per laser sample, what the node's "
-              "callback runs (p50 / p99 / p99.9, us): before (ModelTracker.update: the EKF and the window buffer) "
-              + " / ".join(f"{v / 1e3:.0f}" for v in np.percentile(samples[0], [50, 99, 99.9]))
-              + "; after (the same + DriftTracking.due) "
-              + " / ".join(f"{v / 1e3:.0f}" for v in np.percentile(samples[1], [50, 99, 99.9])) + "."]
+    lines += ["", f"Window fit + absorption (DriftTracking.prepare + apply, synchronous here), per fit (at the stamp): "
+              f"median {np.median(costs) * 1e3:.0f} ms, p99 {np.percentile(costs, 99) * 1e3:.0f} ms over {len(costs)} "
+              f"fits ({time.perf_counter() - t_start:.0f} s wall for this benchmark). Per laser sample, what the "
+              "node's callback runs (DriftTracking.observe + due; p50 / p99 / p99.9, us): "
+              + " / ".join(f"{v / 1e3:.0f}" for v in np.percentile(samples, [50, 99, 99.9])) + "."]
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out:

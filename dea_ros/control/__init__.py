@@ -15,7 +15,8 @@
 * :mod:`.tracking`: :class:`ModelTracker`, the membrane's drift (electrostatic gain, static and viscoelastic
   stiffness, creep time) estimated online; :mod:`.adaptive`: the controller retuned on the tracked model;
   :mod:`.retune_worker`: that retune prepared in a long-lived worker process, off the control loop's GIL;
-  :mod:`.health`: what changed, in words, with WARN/ERROR levels (/diagnostics);
+  :mod:`.health`: what changed, in words, with WARN/ERROR levels (/diagnostics); :mod:`.voltage_pairing`:
+  laser samples paired by stamps with the applied voltage in effect then (model_node's tracker);
 * :mod:`.simulation`: the closed loop against a simulated rig (noise, quantisation, amplifier), and the
   sample -> applied-voltage delay measured on recorded streams (:func:`loop_delays`).
 """
@@ -45,6 +46,7 @@ from .reference import (
 from .simulation import ClosedLoopResult, SimulatedRig, loop_delays, run_closed_loop
 from .streaming import StreamDecision, StreamedReference
 from .tracking import ModelTracker, TrackedModel, TrackerConfig
+from .voltage_pairing import APPLIED_VOLTAGE_DELAY_SAMPLES, StampedVoltagePairing
 
 __all__ = [
     "ControllerConfig", "ControlOutput", "PositionController", "FeedbackGains", "PIDOnU2", "design_gains",
@@ -53,7 +55,9 @@ __all__ = [
     "plan_move_steps", "plan_checks", "trajectory_from_points", "SampleStream", "TrackingWindow", "ModelPredictor",
     "ClosedLoopResult", "SimulatedRig", "run_closed_loop", "loop_delays",
     "StreamedReference", "StreamDecision",
-    "ModelTracker", "TrackedModel", "TrackerConfig", "DriftTracking", "AdaptiveModel", "RetunePlan", "apply_retune",
+    "ModelTracker", "TrackedModel", "TrackerConfig",
+    "StampedVoltagePairing", "APPLIED_VOLTAGE_DELAY_SAMPLES",
+    "DriftTracking", "AdaptiveModel", "RetunePlan", "apply_retune",
     "prepare_retune",
     "RetuneRequest", "prepare_plan", "RetuneWorker", "BackgroundRetune", "RETUNE_MODES",
     "HealthMonitor", "HealthReport", "HealthThresholds", "PredictionErrorStats", "describe_drift",

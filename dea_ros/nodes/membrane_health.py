@@ -18,7 +18,9 @@ from ..control import (
     DriftTracking,
     HealthMonitor,
     HealthThresholds,
+    APPLIED_VOLTAGE_DELAY_SAMPLES,
     PredictionErrorStats,
+    StampedVoltagePairing,
     TrackerConfig,
 )
 from ..errors import ParameterError
@@ -124,22 +126,27 @@ class ObserverHealth:
     """model_node: the drift tracked on (measured d, applied voltage) with the controller's window fit
     (:class:`DriftTracking` off the callback: :class:`BackgroundRetune`), and the prediction error statistics.
 
-    Raises ParameterError (a ValueError) for an unknown ``window_fit_worker``.
+    Each laser sample is paired by stamps with the applied voltage in effect at its stamp
+    (:class:`StampedVoltagePairing`: the amplifier's outputs held from their stamps on), so the tracker has
+    ``voltage_delay_samples`` 0 (:data:`APPLIED_VOLTAGE_DELAY_SAMPLES`), not the controller's 1 (its command
+    acts a sample later). Raises ParameterError (a ValueError) for an unknown ``window_fit_worker``.
     """
 
     def __init__(self, node, params, sample_period_s: float):
         p = node.get_parameter
         self.enabled = bool(p("track_model").value)
         self.sample_period_s = float(sample_period_s)
-        self.tracking = DriftTracking(params, TrackerConfig(sample_period_s=sample_period_s),
-                                      float(p("window_fit_period_s").value), enabled=self.enabled)
+        config = TrackerConfig(sample_period_s=sample_period_s, voltage_delay_samples=APPLIED_VOLTAGE_DELAY_SAMPLES)
+        self.tracking = DriftTracking(params, config, float(p("window_fit_period_s").value), enabled=self.enabled)
         mode = str(p("window_fit_worker").value)
         if mode not in RETUNE_MODES:
             raise ParameterError(f"parameter 'window_fit_worker': one of {', '.join(RETUNE_MODES)}, got {mode!r}")
         self.fits = BackgroundRetune(self.tracking, mode, float(p("window_fit_timeout_s").value), nice=10)
         self.monitor = HealthMonitor(thresholds_from(node))
         self.errors = PredictionErrorStats()   # since the last status (each report clears it)
+        self.pairing = StampedVoltagePairing()
         self.samples_observed = 0              # laser samples since start (monotonic)
+        self.samples_tracked = 0               # of them paired with their voltage and handed to the tracker
         self.logger = node.get_logger()
         self.failures_logged = 0
 
@@ -147,12 +154,26 @@ class ObserverHealth:
     def tracker(self):
         return self.tracking.tracker
 
-    def observe(self, measured_m: float, predicted_m: float, voltage_V: float) -> None:
-        """A laser sample; the tracker's clock is the sample count (laser stamps may jump, its period does not)."""
+    def voltage(self, t_ns: int, voltage_V: float) -> None:
+        """An applied voltage (the amplifier's output, V), stamped t_ns when applied."""
+        self._track(self.pairing.add_voltage(t_ns, voltage_V))
+
+    def observe(self, t_ns: int, measured_m: float, predicted_m: float) -> None:
+        """A laser sample stamped t_ns: the prediction error now; the tracker once the voltage at t_ns is known."""
         self.samples_observed += 1
         self.errors.add(measured_m, predicted_m)
+        self._track(self.pairing.add_sample(t_ns, measured_m))
+
+    def restart_stamps(self) -> None:
+        """The clock jumped back: forget the buffered stamps (the tracker keeps its estimate)."""
+        self.pairing.clear()
+
+    def _track(self, pairs) -> None:
+        """The tracker's clock is the sample count (laser stamps may jump, its period does not)."""
         fits = self.fits
-        fits.observe(self.samples_observed * self.sample_period_s, measured_m, voltage_V)
+        for measured_m, voltage_V in pairs:
+            self.samples_tracked += 1
+            fits.observe(self.samples_tracked * self.sample_period_s, measured_m, voltage_V)
         if fits.failures != self.failures_logged:        # rare: a dead or late worker
             self.failures_logged = fits.failures
             self.logger.warning(f"no window fit this time ({fits.failures} so far): {fits.last_failure}",
@@ -164,7 +185,8 @@ class ObserverHealth:
         values = [("track_model", str(self.enabled)), ("tracker_updates", tr.updates),
                   ("window_fit_worker", self.fits.describe()), ("window_fits", self.fits.applied),
                   ("window_fits_informative", self.tracker.fits), ("window_fit_failures", self.fits.failures),
-                  ("laser_samples", self.samples_observed)] + report.values
+                  ("laser_samples", self.samples_observed), ("laser_samples_tracked", self.samples_tracked),
+                  ("stale_stamps", self.pairing.stale_samples + self.pairing.stale_voltages)] + report.values
         self.errors.clear()
         return diagnostic_level(report.level), report.message, values
 

@@ -29,6 +29,9 @@ levels (:mod:`.membrane_health`: ``health_*`` parameters; ``health_sample_period
 period). The tracking is position_controller_node's (:class:`dea_ros.control.DriftTracking`: the
 :class:`~dea_ros.control.ModelTracker` EKF per laser sample plus the windowed least squares of the last
 10 s, absorbed the same way, without the retune), so both nodes report the same drift on the same data.
+Each laser sample is paired by stamps with the applied voltage in effect at its stamp (the amplifier's
+outputs held from their stamps on, :class:`~dea_ros.control.StampedVoltagePairing`, whatever order the
+two topics arrive in), with no further delay (the controller's tracker delays its command by a sample).
 The window fit (~0.1 s) never runs in a callback: every ``window_fit_period_s`` (default 2 s) of laser
 samples it is handed to ``window_fit_worker`` ('thread', default: a helper thread; 'process': a worker
 process started with the node, nice 10; 'off': the EKF alone, slow on k1 and the creep time), and a
@@ -156,6 +159,7 @@ class ModelNode(Node):
         if not math.isfinite(u):
             return
         t_ns = stamp_to_ns(msg.header.stamp)
+        self.health.voltage(t_ns, u)
         if not self.predictor.input(t_ns, u):
             return
         self.last_input_ns = self.now_ns()
@@ -165,7 +169,7 @@ class ModelNode(Node):
 
     def on_displacement(self, msg: Range) -> None:
         """A laser sample: the prediction error and the drift tracker (membrane health)."""
-        self.health.observe(float(msg.range), self.stepper.displacement_m, self.voltage_V)
+        self.health.observe(stamp_to_ns(msg.header.stamp), float(msg.range), self.stepper.displacement_m)
 
     def on_timer(self) -> None:
         now = self.now_ns()
@@ -175,6 +179,7 @@ class ModelNode(Node):
             self.get_logger().warning(
                 f"clock jumped back by {(previous - now) * 1e-9:.3f} s: model restarted at {self.voltage_V:.1f} V")
             predictor.restart()
+            self.health.restart_stamps()
             self.last_published_ns = self.last_input_ns = None
         if predictor.model_time_ns is None:
             predictor.start_clock(now)

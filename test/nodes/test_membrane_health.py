@@ -73,6 +73,8 @@ def test_model_node_reports_the_prediction_error_and_the_drift_in_words(ros_cont
     assert 0.90 < float(values["tracked_electrostatic_gain_ratio"]) < 0.985
     assert values["window_fit_worker"] == "thread" and values["window_fit_failures"] == "0"
     assert int(values["window_fits"]) >= 1          # the controller's window fit ran off the callbacks
+    # every laser sample paired by stamps with its voltage (a resent duplicate is dropped as stale)
+    assert int(values["laser_samples_tracked"]) >= 0.99 * int(values["laser_samples"]) > 3000
     windows = [{kv.key: kv.value for kv in st.values} for st in _health(diags, "membrane health")]
     windows = [w for w in windows if int(w.get("prediction_samples", "0")) > 20]
     assert windows                                                     # the error statistics of each report
