@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_right
+from collections import deque
 
 __all__ = ["APPLIED_VOLTAGE_DELAY_SAMPLES", "StampedVoltagePairing"]
 
@@ -33,7 +34,7 @@ class StampedVoltagePairing:
         self.history = int(history)
         self.stamps_ns: list = []        # applied outputs, increasing stamps
         self.voltages_V: list = []
-        self.pending: list = []          # (stamp ns, measured m), waiting for the voltage at their stamp
+        self.pending: deque = deque()    # (stamp ns, measured m), waiting for the voltage at their stamp
         self.stale_voltages = 0          # outputs older than the latest one (ignored)
         self.stale_samples = 0           # samples not newer than the previous one (ignored)
         self.released_ns: int | None = None   # stamp of the latest sample handed out
@@ -71,7 +72,7 @@ class StampedVoltagePairing:
         pending, out = self.pending, []
         latest = self.stamps_ns[-1] if self.stamps_ns else None
         while pending and ((latest is not None and pending[0][0] <= latest) or len(pending) > self.max_pending):
-            t_ns, d = pending.pop(0)
+            t_ns, d = pending.popleft()
             out.append((d, self.voltage_at(t_ns)))
             self.released_ns = t_ns
         return out

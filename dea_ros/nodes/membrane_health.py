@@ -155,14 +155,16 @@ class ObserverHealth:
         return self.tracking.tracker
 
     def voltage(self, t_ns: int, voltage_V: float) -> None:
-        """An applied voltage (the amplifier's output, V), stamped t_ns when applied."""
-        self._track(self.pairing.add_voltage(t_ns, voltage_V))
+        """An applied voltage (the amplifier's output, V), stamped t_ns when applied (kept only when tracking)."""
+        if self.enabled:
+            self._track(self.pairing.add_voltage(t_ns, voltage_V))
 
     def observe(self, t_ns: int, measured_m: float, predicted_m: float) -> None:
         """A laser sample stamped t_ns: the prediction error now; the tracker once the voltage at t_ns is known."""
         self.samples_observed += 1
         self.errors.add(measured_m, predicted_m)
-        self._track(self.pairing.add_sample(t_ns, measured_m))
+        if self.enabled:   # without tracking nothing is paired (the laser callback runs at up to 2 kHz)
+            self._track(self.pairing.add_sample(t_ns, measured_m))
 
     def restart_stamps(self) -> None:
         """The clock jumped back: forget the buffered stamps (the tracker keeps its estimate)."""
