@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # The test command of the README: set up .venv if needed, then run the test suite.
 #   scripts/run_tests.sh [pytest args]         every test but the long numerical ones without ROS
-#                                              (marker numeric_heavy, test/conftest.py): ~10-12 min on 2 cores
-#   scripts/run_tests.sh --all [pytest args]   the whole suite (~20 min on 2 cores)
+#                                              (marker numeric_heavy, test/conftest.py): ~8 min on 2 cores
+#   scripts/run_tests.sh --all [pytest args]   the whole suite (~12 min on 2 cores)
+# The suite runs on DEA_ROS_TEST_WORKERS (default 2) pytest processes, a test module per process at a
+# time (pytest-xdist, --dist loadfile: a module's fixtures are built once); each process's node tests use
+# their own ROS domain (test/conftest.py). "-n 0" among the pytest args runs it in one process.
 # CI (.ci/run) runs the numeric_heavy tests on the humble stack (scripts/run_tests_stack.sh humble), so
 # each test runs on at least one stack and the whole CI stays within its time budget.
 set -euo pipefail
@@ -11,9 +14,10 @@ cd "$here"
 bash scripts/setup_env.sh
 venv="${DEA_ROS_VENV:-$here/.venv}"
 export MPLBACKEND=Agg
+workers=(-n "${DEA_ROS_TEST_WORKERS:-2}" --dist loadfile)
 if [ "${1:-}" = "--all" ]; then
   shift
-  exec "$venv/bin/python" -m pytest -q "$@"
+  exec "$venv/bin/python" -m pytest -q "${workers[@]}" "$@"
 fi
 # a -m of the caller's comes later on the command line and replaces this one
-exec "$venv/bin/python" -m pytest -q -m "not numeric_heavy" "$@"
+exec "$venv/bin/python" -m pytest -q "${workers[@]}" -m "not numeric_heavy" "$@"

@@ -4,6 +4,8 @@
 #   scripts/run_tests_stack.sh humble [pytest args]   Python 3.10, numpy 1.21.5, scipy 1.8.0, matplotlib 3.5.1,
 #                                                     PyYAML 5.4.1, numba 0.55.1 (Ubuntu 22.04's apt versions); no ROS 2:
 #                                                     the node tests skip
+#   scripts/run_tests_stack.sh humble|jazzy --setup-only   build the stack's venv and stop (CI builds the
+#                                                     next stacks' venvs while the first stack's tests run)
 #   scripts/run_tests_stack.sh jazzy [pytest args]    Python 3.12, numpy 1.26.4, scipy 1.11.4, numba 0.59.0 (Ubuntu 24.04's),
 #                                                     matplotlib 3.8.4 (24.04 has 3.6.3, which PyPI has for
 #                                                     Python <= 3.11 only), with Jazzy's rclpy and messages from the
@@ -26,6 +28,8 @@ case "$stack" in
   *) echo "usage: scripts/run_tests_stack.sh humble|jazzy [pytest args]" >&2; exit 2 ;;
 esac
 shift
+setup_only=0
+if [ "${1:-}" = "--setup-only" ]; then setup_only=1; shift; fi
 venv="${DEA_ROS_STACK_VENV:-$here/.venv-$stack}"
 constraints="requirements-stack-$stack.txt"
 
@@ -79,6 +83,7 @@ PY
 fi
 "$venv/bin/python" -c "import sys, numpy, scipy, matplotlib, yaml, numba; print('[stack $stack] Python', sys.version.split()[0], \
 'numpy', numpy.__version__, 'numba', numba.__version__, 'scipy', scipy.__version__, 'matplotlib', matplotlib.__version__, 'PyYAML', yaml.__version__)"
+if [ "$setup_only" = 1 ]; then exit 0; fi
 export MPLBACKEND=Agg ROS_DISTRO="$stack"
 if [ "$stack" = jazzy ]; then
   marker="not linter and not numeric_heavy"   # humble runs those (test/conftest.py)
@@ -86,4 +91,5 @@ else
   marker="not linter"
 fi
 # a -m of the caller's comes later on the command line and replaces this one (-m "" runs everything)
-exec "$venv/bin/python" -m pytest -q -m "$marker" "$@"
+# two pytest processes, a module per process at a time, as scripts/run_tests.sh runs them ("-n 0": one)
+exec "$venv/bin/python" -m pytest -q -n "${DEA_ROS_TEST_WORKERS:-2}" --dist loadfile -m "$marker" "$@"

@@ -3,6 +3,7 @@
 The suite runs with ``--import-mode=importlib`` (test folders are not packages), so the folder of
 this file goes on ``sys.path`` once, here, for ``from fakes import load_fake``.
 """
+import os
 import sys
 from pathlib import Path
 
@@ -13,6 +14,14 @@ from dea_ros.blas_threads import use_one_blas_thread
 # in the test process (test_identifier_adaptive: to 1e-9) then compares one computation, not two
 # thread counts' roundings (4e-8 apart on the CI machine of stop 28).
 use_one_blas_thread()
+
+# Under pytest -n (scripts/run_tests.sh runs the suite on two processes) each worker process uses its
+# own ROS domain: the caller's ROS_DOMAIN_ID (or one per run) plus the worker's index, so two node
+# tests running at once never see each other's topics. The nodes they start inherit it.
+_XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
+if _XDIST_WORKER.startswith("gw"):
+    _base_domain = int(os.environ.get("ROS_DOMAIN_ID") or 100 + os.getppid() % 50 * 2)
+    os.environ["ROS_DOMAIN_ID"] = str((_base_domain + int(_XDIST_WORKER[2:])) % 233)
 
 import pytest  # noqa: E402
 
