@@ -3,9 +3,10 @@
 #   scripts/run_tests.sh [pytest args]         every test but the long numerical ones without ROS
 #                                              (marker numeric_heavy, test/conftest.py): ~8 min on 2 cores
 #   scripts/run_tests.sh --all [pytest args]   the whole suite (~12 min on 2 cores)
-# The suite runs on DEA_ROS_TEST_WORKERS (default 2) pytest processes, a test module per process at a
-# time (pytest-xdist, --dist loadfile: a module's fixtures are built once); each process's node tests use
-# their own ROS domain (test/conftest.py). "-n 0" among the pytest args runs it in one process.
+# The suite runs on DEA_ROS_TEST_WORKERS (default 2) pytest processes (pytest-xdist, --dist loadgroup,
+# groups in test/conftest.py): a module's tests stay in one process (its fixtures are built once) and the
+# tests that run a rig or nodes all run in one process, one at a time; each process uses its own ROS
+# domain. "-n 0" among the pytest args runs the suite in one process.
 # CI (.ci/run) runs the numeric_heavy tests on the humble stack (scripts/run_tests_stack.sh humble), so
 # each test runs on at least one stack and the whole CI stays within its time budget.
 set -euo pipefail
@@ -14,7 +15,7 @@ cd "$here"
 bash scripts/setup_env.sh
 venv="${DEA_ROS_VENV:-$here/.venv}"
 export MPLBACKEND=Agg
-workers=(-n "${DEA_ROS_TEST_WORKERS:-2}" --dist loadfile)
+workers=(-n "${DEA_ROS_TEST_WORKERS:-2}" --dist loadgroup)
 if [ "${1:-}" = "--all" ]; then
   shift
   exec "$venv/bin/python" -m pytest -q "${workers[@]}" "$@"

@@ -52,9 +52,18 @@ NUMERIC_HEAVY_TESTS = (
 )
 
 
+#: Tests that run a rig or nodes on the ROS graph in their own processes against wall-clock limits: under
+#: pytest -n (scripts/run_tests.sh, ``--dist loadgroup``) they all run in one worker, one at a time, as in a
+#: one-process run; the other worker takes the rest of the suite meanwhile (the end-to-end demo among it:
+#: its lockstep rig slows down under load instead of failing, as the demo does beside other work).
+RIG_PATHS = ("nodes/", "test_package.py", "test_rig_check.py")
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         path = Path(str(item.fspath)).resolve().relative_to(TEST_DIR).as_posix()
         name = f"{path}::{item.originalname}"
         if path in NUMERIC_HEAVY_MODULES or name in NUMERIC_HEAVY_TESTS:
             item.add_marker(pytest.mark.numeric_heavy)
+        # a module's tests stay together (its module-scoped fixtures are built once); the rig tests all in one
+        item.add_marker(pytest.mark.xdist_group("rig" if path.startswith(RIG_PATHS) else path))

@@ -145,17 +145,29 @@ protocol:
 class ForeignCommand:
     """Another node on the graph: once the sine is under way (an applied voltage above 1000 V), one 0 V
     ``voltage_cmd``. amplifier_node takes it (a single command supersedes a queued batch) and empties
-    its queue: the identifier's batch is gone, nobody acknowledges the next tick, the rig pauses."""
+    its queue: the identifier's batch is gone, nobody acknowledges the next tick, the rig pauses.
+
+    A command that lands while the queue happens to be empty (its last sample taken, the next batch not yet
+    there) takes nothing away and the run goes on; then, seen as the sine still running 0.2 s of simulated
+    time later within 0.8 s of wall time (no pause), it is sent again, at most ``MAX_SENDS`` times."""
+
+    MAX_SENDS = 3
 
     def __init__(self, ctx):
         self.ctx = ctx
         self.node = self.executor = self.pub = None
-        self.sent_at_s: float | None = None   # the stamp of the applied voltage that triggered it, s
+        self.sent_at_s: float | None = None   # the stamp of the applied voltage that triggered the last one, s
+        self.sent_wall_s = 0.0
+        self.sends = 0
 
     def on_voltage(self, msg: BatteryState) -> None:
-        if self.sent_at_s is None and msg.voltage > 1000.0:
+        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        not_lost = (self.sent_at_s is not None and stamp_s > self.sent_at_s + 0.2
+                    and time.monotonic() - self.sent_wall_s < 0.8 and self.sends < self.MAX_SENDS)
+        if msg.voltage > 1000.0 and (self.sent_at_s is None or not_lost):
             self.pub.publish(Float64(data=0.0))
-            self.sent_at_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            self.sent_at_s, self.sent_wall_s = stamp_s, time.monotonic()
+            self.sends += 1
 
     def __call__(self, ns: str) -> None:
         if self.node is None:
