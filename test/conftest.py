@@ -59,6 +59,7 @@ NUMERIC_HEAVY_TESTS = (
 RIG_PATHS = ("nodes/", "test_package.py", "test_rig_check.py")
 
 
+@pytest.hookimpl(tryfirst=True)   # before pytest-xdist's own hook, which reads the xdist_group marks
 def pytest_collection_modifyitems(config, items):
     for item in items:
         path = Path(str(item.fspath)).resolve().relative_to(TEST_DIR).as_posix()
