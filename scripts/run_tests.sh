@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The test command of the README: set up .venv if needed, then run the test suite.
 #   scripts/run_tests.sh [pytest args]         every test but the long numerical ones without ROS
-#                                              (marker numeric_heavy, test/conftest.py): ~8 min on 2 cores
-#   scripts/run_tests.sh --all [pytest args]   the whole suite (~12 min on 2 cores)
+#                                              (marker numeric_heavy, test/conftest.py): ~9 min on 2 cores
+#   scripts/run_tests.sh --all [pytest args]   the whole suite (~14 min on 2 cores)
 # The suite runs on DEA_ROS_TEST_WORKERS (default 2) pytest processes (pytest-xdist, --dist loadgroup,
 # groups in test/conftest.py): a module's tests stay in one process (its fixtures are built once) and the
 # tests that run a rig or nodes all run in one process, one at a time; each process uses its own ROS
