@@ -91,5 +91,5 @@ else
   marker="not linter"
 fi
 # a -m of the caller's comes later on the command line and replaces this one (-m "" runs everything)
-# two pytest processes, a module per process at a time, as scripts/run_tests.sh runs them ("-n 0": one)
+# two pytest processes with the groups of test/conftest.py, as scripts/run_tests.sh runs them ("-n 0": one)
 exec "$venv/bin/python" -m pytest -q -n "${DEA_ROS_TEST_WORKERS:-2}" --dist loadgroup -m "$marker" "$@"

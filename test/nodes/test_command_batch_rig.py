@@ -161,10 +161,12 @@ class ForeignCommand:
         self.sends = 0
 
     def on_voltage(self, msg: BatteryState) -> None:
+        if msg.voltage <= 1000.0 or self.sends >= self.MAX_SENDS:
+            return
         stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        not_lost = (self.sent_at_s is not None and stamp_s > self.sent_at_s + 0.2
-                    and time.monotonic() - self.sent_wall_s < 0.8 and self.sends < self.MAX_SENDS)
-        if msg.voltage > 1000.0 and (self.sent_at_s is None or not_lost):
+        ran_on_without_pause = (self.sent_at_s is not None and stamp_s > self.sent_at_s + 0.2
+                                and time.monotonic() - self.sent_wall_s < 0.8)
+        if self.sent_at_s is None or ran_on_without_pause:
             self.pub.publish(Float64(data=0.0))
             self.sent_at_s, self.sent_wall_s = stamp_s, time.monotonic()
             self.sends += 1
