@@ -24,8 +24,10 @@ harmonic-balance equations of the solution each record is fitted with (T/2 perio
 period-doubled; quasi-periodic records are left out by the caller). The 95 % intervals come from
 the linearised covariance of the chi-square (t quantile, s^2 = chi^2 / dof).
 
-sigma_h''(1) (the curvature of the hyperelastic stress) is invisible to the static data and is
-fitted only from the large oscillations near resonance; so is the next term, sigma_h'''(1): at
+sigma_h''(1) (the curvature of the hyperelastic stress) is invisible to the static data of most
+membranes (where large deflections do determine it, the static fit frees it and so does this fit,
+``curvature_from_static``) and is fitted from the large oscillations near resonance; so is the next
+term, sigma_h'''(1): at
 1.5 mm RMS (s - 1 up to 0.03) and 0.03 um uncertainty of an RMS value a wrong third derivative
 alone moves the response near the peak by 40 standard deviations, so it is fitted with the
 curvature (a nuisance parameter: the intervals of the others allow for it). sigma_h''(1) is
@@ -294,6 +296,7 @@ def fit_joint(
     max_evaluations: int = 60,
     curvature_rel_ci_limit: float = CURVATURE_REL_CI_LIMIT,
     progress: Callable[[dict], None] | None = None,
+    curvature_from_static: bool = False,
 ) -> JointFitResult:
     """Refine all identifiable parameters jointly (module docstring), starting from ``start``.
 
@@ -301,7 +304,9 @@ def fit_joint(
     quasi-periodic ones out) and ``measured_std_m`` (None: estimated from the residuals of a first
     pass). ``fit_curvature``: include sigma_h''(1) and sigma_h'''(1) (when sine data exist); "third":
     only sigma_h'''(1), sigma_h''(1) held at the start's value. ``curvature_fallback_Pa``:
-    the value the caller will write when it is not identified (reported only).
+    the value the caller will write when it is not identified (reported only). ``curvature_from_static``:
+    the static points determine sigma_h''(1) (:func:`~.static_fit.static_curvature_test`), so the curvature
+    terms are fitted even without sine records (held, they would bias the others).
     """
     t0 = time.perf_counter()
     points = list(points)
@@ -312,7 +317,7 @@ def fit_joint(
     warnings = []
     if estimated_rms_sigma:
         point_s = [s if s is not None else 1e-7 for s in point_s]
-    if not points:
+    if not points and not curvature_from_static:
         fit_curvature = False
 
     def objective_from(first: MembraneParameters, rms_sigmas) -> JointObjective:

@@ -39,10 +39,10 @@ from .determination import determine_parameters
 from .dynamic_fit import DynamicFitResult, fit_dynamic, select_fit_frequencies
 from .evaluation import Evaluation, evaluate
 from .experiments import ExperimentSet, data_warnings
-from .joint_fit import JointFitResult
+from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitResult
 from .refinement import decide_curvature, refine_jointly
 from .result import IdentificationResult
-from .static_fit import StaticFitResult, fit_static, stress_combinations
+from .static_fit import StaticFitResult, fit_static, static_curvature_test, stress_combinations
 from .uncertainty import response_bands
 
 __all__ = ["IdentificationOptions", "identify"]
@@ -135,6 +135,7 @@ def _static_stage(run: _Run) -> None:
             )
         run.static = fit_static(data, template, method=opt.static_method, stress_terms=run.stress_terms,
                                 prior_from_template=exp.base_parameters is not None, progress=run.progress)
+        _free_static_curvature_if_determined(run, data, template)
         run.timings["static_fit"] = time.perf_counter() - t0
         run.params = run.static.parameters
     elif exp.base_parameters is not None:
@@ -144,6 +145,22 @@ def _static_stage(run: _Run) -> None:
             "no static experiment and no base parameters file: beta, gamma and eps_r are unknown; add "
             "static points (mass, voltage, displacement) or reference a parameters file in the manifest"
         )
+
+
+def _free_static_curvature_if_determined(run: _Run, data, template: MembraneParameters) -> None:
+    """The static fit again with sigma_h''(1) free; kept when the rest displacements determine it
+    (:func:`~.static_fit.static_curvature_test`), so that a curvature the data contradict is not held at
+    the representation's value (issue 21, item 1). Only for the default least-squares fit with two stress
+    terms and enough points, and not when sigma_h''(1) is never to be fitted or is fitted in stage 1."""
+    opt = run.options
+    if opt.static_method != "lsq" or run.stress_terms != 2 or opt.fit_curvature != "auto" or data.mass_kg.size < 7:
+        return
+    free = fit_static(data, template, method="lsq", stress_terms=3,
+                      prior_from_template=run.experiments.base_parameters is not None)
+    test = static_curvature_test(run.static, free, rel_ci_limit=CURVATURE_REL_CI_LIMIT)
+    if test.needed:
+        free.warnings.append(test.note())
+        run.static, run.stress_terms = free, 3
 
 
 def _stage1_fit(run: _Run, static_params: MembraneParameters, freqs: list, **extra) -> DynamicFitResult:

@@ -92,7 +92,7 @@ def _joint_fit(start: MembraneParameters, static: StaticFitResult, experiments: 
     return fit_joint(start, experiments.all_static(), experiments.steps, points, static_sigma(static),
                      noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
                      fit_curvature=fit_curvature, fit_slope=stress_terms >= 2, curvature_fallback_Pa=fallback_Pa,
-                     n_harmonics=n_harmonics, progress=progress)
+                     n_harmonics=n_harmonics, progress=progress, curvature_from_static=stress_terms >= 3)
 
 
 def refine_jointly(params: MembraneParameters, static: StaticFitResult, classification: list,
@@ -102,7 +102,7 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
     again until the classification does not change (module docstring). ``fit_curvature``: False never
     fits sigma_h''(1); otherwise it is fitted when there are sine records."""
     fallback = curvature_fallback(static, params)
-    fit_c = (fit_curvature is not False) and bool(experiments.sines)
+    fit_c = (fit_curvature is not False) and (bool(experiments.sines) or stress_terms >= 3)
     rounds = JointRounds(None, params, classification, fallback)
     for _round in range(3):
         pts = fitted_points(rounds.classification, experiments)

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from scipy import stats as scipy_stats
 from scipy.optimize import least_squares, minimize
 
 from ..model.dynamics import DEAModel
@@ -61,6 +62,8 @@ __all__ = [
     "StaticFitResult",
     "StaticFitError",
     "fit_static",
+    "CurvatureTest",
+    "static_curvature_test",
     "stress_combinations",
     "ogden_from_combinations",
     "OgdenRepresentation",
@@ -321,12 +324,12 @@ def _check_static_data(data: StaticData, n_params: int) -> None:
         )
 
 
-def ogden_warning(stats: ParameterStatistics) -> str:
+def ogden_warning(stats: ParameterStatistics, fitted: tuple = ("sigma_h(1)", "sigma_h'(1)", "eps_r")) -> str:
     """One-line summary of the (beta, gamma, eps_r) identifiability analysis (the known trade-off).
 
     Pairwise correlations understate a multi-dimensional degeneracy, so the summary gives the
     singular values of the column-normalised Jacobian: the number above 1e-3 of the largest is
-    the number of combinations the data determine.
+    the number of combinations the data determine; ``fitted``: what the fit determines instead.
     """
     sv = stats.singular_values / stats.singular_values[0]
     determined = int(np.count_nonzero(sv > 1e-3))
@@ -337,7 +340,8 @@ def ogden_warning(stats: ParameterStatistics) -> str:
         f"determine {determined} combination(s) (normalised singular values "
         + ", ".join(f"{x:.2g}" for x in sv) + "); "
         + (f"{', '.join(unbounded)} have unbounded 95 % CIs; " if unbounded else "")
-        + "only sigma_h(1), sigma_h'(1) and eps_r are determined, the written beta/gamma are one representative"
+        + f"only {', '.join(fitted[:-1])} and {fitted[-1]} are determined, the written beta/gamma are one "
+        "representative"
     )
 
 
@@ -357,7 +361,8 @@ def _finish(template, beta, gamma, eps_r, data, problem, method, stats, cost, nf
         ("beta_1", "beta_2", "beta_3", "gamma_1", "gamma_2", "gamma_3", "eps_r"),
         np.r_[beta, gamma, eps_r], context="Ogden coefficients (beta, gamma) and eps_r",
     )
-    warnings = list(warnings) + [ogden_warning(ogden_stats)]
+    fitted = tuple(n.removesuffix("_Pa") for n in stats.names) if stats is not None else ()
+    warnings = list(warnings) + [ogden_warning(ogden_stats, fitted) if len(fitted) >= 2 else ogden_warning(ogden_stats)]
     return StaticFitResult(
         parameters=params, method=method, statistics=stats, ogden_statistics=ogden_stats,
         mass_kg=data.mass_kg, voltage_V=data.voltage_V, measured_m=data.displacement_m,
@@ -593,3 +598,45 @@ def fit_static(
         return _fit_lsq(template, data, problem, stress_terms, prior, progress, t0, curvature_Pa)
     start = generic_start(template, data) if start is None else start
     return _fit_paper(template, data, problem, start, progress, t0, nelder_mead_options)
+
+
+@dataclass(frozen=True)
+class CurvatureTest:
+    """Whether the rest displacements determine sigma_h''(1) (eq. 10) beyond sigma_h(1), sigma_h'(1) and
+    eps_r (:func:`static_curvature_test`)."""
+
+    needed: bool                 # the fit with sigma_h''(1) free is the one to use
+    f_statistic: float           # extra sum of squares F(1, dof) of freeing sigma_h''(1)
+    p_value: float
+    sum_sq_ratio: float          # sum of squares held / free
+    relative_ci: float           # 95 % half-width / |value| of sigma_h''(1) in the free fit
+    dof: int                     # residual degrees of freedom of the free fit
+
+    def note(self) -> str:
+        """One sentence for the identification's warnings."""
+        return (f"static fit: the rest displacements determine sigma_h''(1) (sum of squares {self.sum_sq_ratio:.3g}x "
+                f"smaller with it free, F(1, {self.dof}) = {self.f_statistic:.3g}, p = {self.p_value:.2g}; 95 % "
+                f"interval +-{100 * self.relative_ci:.2g} %): it is fitted with sigma_h(1), sigma_h'(1) and eps_r "
+                "instead of held at the representation's value, which would bias them")
+
+
+def static_curvature_test(held: StaticFitResult, free: StaticFitResult, alpha: float = 1e-3,
+                          rel_ci_limit: float = 0.5) -> CurvatureTest:
+    """Compare the least-squares static fit with sigma_h''(1) held (``stress_terms=2``: it follows the
+    representation of the fitted combinations) and free (``stress_terms=3``) on the same points: the
+    nested models' extra-sum-of-squares F test at level ``alpha``, and sigma_h''(1) determined (95 %
+    half-width at most ``rel_ci_limit`` of its value). Large deflections probe the stress curve away from
+    stretch 1, so a membrane whose curvature differs from the representation's is fitted with a wrong
+    slope and eps_r when it is held (issue 21, item 1)."""
+    n = int(free.measured_m.size)
+    dof = n - 4
+    held_ss, free_ss = float(held.cost), float(free.cost)
+    names = free.statistics.names if free.statistics is not None else ()
+    k = names.index("sigma_h''(1)_Pa") if "sigma_h''(1)_Pa" in names else None
+    rel = float(free.statistics.relative_ci[k]) if k is not None else math.inf
+    if dof < 1 or not (math.isfinite(held_ss) and math.isfinite(free_ss)) or free_ss > held_ss:
+        return CurvatureTest(False, 0.0, 1.0, 1.0, rel, max(dof, 0))
+    f_stat = (held_ss - free_ss) / max(free_ss / dof, 1e-300)
+    p_value = float(scipy_stats.f.sf(f_stat, 1, dof))
+    ratio = held_ss / free_ss if free_ss > 0 else math.inf
+    return CurvatureTest(bool(p_value < alpha and rel <= rel_ci_limit), float(f_stat), p_value, ratio, rel, dof)
