@@ -256,6 +256,7 @@ class _Cut:
     static_u: list = field(default_factory=list)
     static_d: list = field(default_factory=list)
     static_noise: list = field(default_factory=list)
+    static_motion: list = field(default_factory=list)   # RMS about the linear trend of each point's window
     steps: list = field(default_factory=list)
     #: (record, amplitude V, offset V, held-voltage times, held voltages) per sine segment
     sines: list = field(default_factory=list)
@@ -270,6 +271,8 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
     u = float(np.mean(line.voltage_at(t)))
     cut.static_u.append(u)
     cut.static_d.append(float(np.mean(d)))
+    tr = t - t[0]
+    cut.static_motion.append(float(np.std(d - np.polyval(np.polyfit(tr, d, 1), tr))))
     # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
     sigma = third_difference_noise(d)
     if sigma is not None:
@@ -376,7 +379,8 @@ def experiments_from_signals(signals: BagSignals, path, segments_file=None, memb
     noise = float(np.sqrt(np.mean(np.square(cut.static_noise)))) if cut.static_noise else None
     noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
     static = [StaticData(np.full(len(cut.static_u), mass), np.array(cut.static_u), np.array(cut.static_d),
-                         source=f"{path} static segments")] if cut.static_u else []
+                         source=f"{path} static segments", motion_rms_m=np.array(cut.static_motion))
+              ] if cut.static_u else []
     # one SineData per waveform: |U sin| (no offset) and offset + U sin (a planned second pass may add it)
     groups = [[s for s in cut.sines if s[2] == 0.0], [s for s in cut.sines if s[2] != 0.0]]
     sources = [f"{path} sine segments", f"{path} offset sine segments" if groups[0] else f"{path} sine segments"]

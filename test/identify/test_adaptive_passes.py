@@ -135,7 +135,7 @@ def test_limits_follow_the_first_pass():
     assert (limits.static_hold_s, limits.static_measure_s) == (1.5, 0.5)
     assert limits.step_rest_min_s == 2.0          # pass 1's step follows 2500 V directly: the default
     quick = limits_for_protocol(load_protocol("quick_adaptive"))
-    assert quick.step_rest_min_s == 10.0           # its step: 3 s at 0 V (the staircase's last level) + 7 s rest
+    assert quick.step_rest_min_s == 17.0           # its step: 10 s at 0 V (the staircase's last level) + 7 s rest
     # every planned sine has two periods measured at least (pass 1: 1 s measured, quick: 2 s)
     assert limits.min_frequency_Hz == pytest.approx(1.01) and quick.min_frequency_Hz == pytest.approx(0.505)
     assert limits_for_protocol(PASS1, max_voltage_V=2100.0).max_voltage_V == 2100.0

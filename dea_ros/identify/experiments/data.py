@@ -39,6 +39,9 @@ class StaticData:
     voltage_V: np.ndarray
     displacement_m: np.ndarray
     source: str = "static data"
+    #: per point, the RMS of its samples about their linear trend over the measurement window (m), where
+    #: the samples were recorded (a bag): the laser noise alone when the membrane was at rest; None otherwise
+    motion_rms_m: np.ndarray | None = None
 
     def __post_init__(self):
         src = self.source
@@ -53,6 +56,10 @@ class StaticData:
         check_displacement(d, "displacement_m", src)
         for name, arr in (("mass_kg", m), ("voltage_V", u), ("displacement_m", d)):
             object.__setattr__(self, name, arr)
+        if self.motion_rms_m is not None:
+            motion = np.asarray(self.motion_rms_m, float)
+            check_lengths(src, displacement_m=d, motion_rms_m=motion)
+            object.__setattr__(self, "motion_rms_m", motion)
 
     @property
     def n_points(self) -> int:
@@ -414,11 +421,16 @@ class ExperimentSet:
         """All static points merged into one table (None when there are none)."""
         if not self.static:
             return None
+        motion = None
+        if any(s.motion_rms_m is not None for s in self.static):
+            motion = np.concatenate([s.motion_rms_m if s.motion_rms_m is not None else np.full(s.n_points, np.nan)
+                                     for s in self.static])
         return StaticData(
             np.concatenate([s.mass_kg for s in self.static]),
             np.concatenate([s.voltage_V for s in self.static]),
             np.concatenate([s.displacement_m for s in self.static]),
             source=", ".join(s.source for s in self.static),
+            motion_rms_m=motion,
         )
 
     def summary(self) -> str:

@@ -7,10 +7,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .data import ExperimentSet, StepData
+from .data import ExperimentSet, StaticData, StepData
 from .records import third_difference_noise
 
-__all__ = ["estimate_noise_m", "rest_warning", "step_settling_warning", "data_warnings"]
+__all__ = ["estimate_noise_m", "rest_warning", "step_settling_warning", "static_motion_warning", "data_warnings"]
+
+#: a static point's samples spread this many times the laser noise about their trend: still moving
+STATIC_MOTION_LIMIT = 1.5
 
 
 def estimate_noise_m(step: StepData, min_samples: int = 20) -> float | None:
@@ -92,6 +95,26 @@ def step_settling_warning(step: StepData, noise_m: float | None) -> str | None:
     return None
 
 
+def static_motion_warning(static: StaticData, noise_m: float | None) -> str | None:
+    """A warning when static points were still moving during their measurement (ringing or creeping
+    after the previous level): their samples spread about their linear trend by more than
+    ``STATIC_MOTION_LIMIT`` times the laser noise (third differences, which slow motion does not enter).
+    Eq. 20 takes the mean as the equilibrium, so such a point biases eps_r, the stress and, through them,
+    the dynamic parameters (the mock membrane after 4 s holds: eta2 +0.4 % noise-free, docs/benchmarks.md)."""
+    if static.motion_rms_m is None or noise_m is None or not noise_m > 0:
+        return None
+    limit = STATIC_MOTION_LIMIT * noise_m
+    moving = [k for k, rms in enumerate(static.motion_rms_m) if np.isfinite(rms) and rms > limit]
+    if not moving:
+        return None
+    points = ", ".join(f"{static.voltage_V[k]:g} V at {static.mass_kg[k] * 1e3:g} g "
+                       f"({static.motion_rms_m[k] * 1e6:.3g} um RMS)" for k in moving)
+    return (f"{static.source}: {len(moving)} static point(s) still moving during the measurement: {points} about "
+            f"their trend, laser noise {noise_m * 1e6:.3g} um. Their means are not the equilibria eq. 20 assumes, "
+            "so the static and dynamic parameters are biased: hold each level longer (several of the membrane's "
+            "slowest time constants, dea_ros.model.settling)")
+
+
 def data_warnings(experiments: ExperimentSet) -> list[str]:
     """Data-quality warnings that do not prevent a fit (unsettled steps, missing data kinds)."""
     out = []
@@ -102,6 +125,10 @@ def data_warnings(experiments: ExperimentSet) -> list[str]:
         for w in (rest_warning(step, sigma), step_settling_warning(step, sigma)):
             if w:
                 out.append(w)
+    for static in experiments.static:
+        w = static_motion_warning(static, noise)
+        if w:
+            out.append(w)
     if not experiments.static:
         out.append("no static experiment: the static parameters (beta, gamma, eps_r) come from the base "
                    "parameters file unchanged")
