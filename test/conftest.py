@@ -39,7 +39,8 @@ if TEST_DIR not in sys.path:
 NUMERIC_HEAVY_MODULES = (
     "bag/test_extract.py", "control/test_health.py", "control/test_range_ends.py", "control/test_tracking.py",
     "control/test_window_fit.py", "identify/test_creep_basins.py", "identify/test_many.py", "identify/test_planning.py",
-    "identify/test_beyond_fold.py", "identify/test_record_truth.py", "identify/test_roundtrip.py",
+    "identify/test_beyond_fold.py", "identify/test_joint_branches.py", "identify/test_record_truth.py",
+    "identify/test_roundtrip.py",
     "identify/test_unidentified_curvature.py", "identify/test_unlike_membrane.py",
     "solvers/test_arclength.py", "solvers/test_continuation.py", "solvers/test_harmonic_balance.py",
 )
