@@ -79,8 +79,8 @@ def test_abort_keeps_the_recording_and_commands_zero(ros_context, spin_until, tm
     for n in (rig, node, peer):
         ex.add_node(n)
     assert spin_until(ex, lambda: node.state == "running", timeout_s=10.0)
-    # the staircase is under way: the 2 kV level reaches the rig
-    assert spin_until(ex, lambda: rig.commands and max(rig.commands) > 1000.0, timeout_s=10.0)
+    # the staircase is under way: the 2 kV level reaches the rig (after the protocol's 10 s at 0 V)
+    assert spin_until(ex, lambda: rig.commands and max(rig.commands) > 1000.0, timeout_s=40.0)
     # enough recorded to count (in wall time: a loaded machine runs the timers slower)
     assert spin_until(ex, lambda: rig.ticks > 700 and len(rig.commands) > 150, timeout_s=60.0)
     fut = abort.call_async(Trigger.Request())
