@@ -51,6 +51,7 @@ from .experiments import (
     StepData,
     periodic_input_from_record,
     rms_statistics,
+    detrended_rms,
     third_difference_noise,
 )
 
@@ -271,8 +272,7 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
     u = float(np.mean(line.voltage_at(t)))
     cut.static_u.append(u)
     cut.static_d.append(float(np.mean(d)))
-    tr = t - t[0]
-    cut.static_motion.append(float(np.std(d - np.polyval(np.polyfit(tr, d, 1), tr))))
+    cut.static_motion.append(detrended_rms(t, d))
     # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
     sigma = third_difference_noise(d)
     if sigma is not None:

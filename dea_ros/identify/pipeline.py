@@ -153,7 +153,7 @@ def _free_static_curvature_if_determined(run: _Run, data, template: MembranePara
     the representation's value (issue 21, item 1). Only for the default least-squares fit with two stress
     terms and enough points, and not when sigma_h''(1) is never to be fitted or is fitted in stage 1."""
     opt = run.options
-    if opt.static_method != "lsq" or run.stress_terms != 2 or opt.fit_curvature != "auto" or data.mass_kg.size < 7:
+    if opt.static_method != "lsq" or run.stress_terms != 2 or opt.fit_curvature != "auto" or data.n_points < 7:
         return
     free = fit_static(data, template, method="lsq", stress_terms=3,
                       prior_from_template=run.experiments.base_parameters is not None)

@@ -126,7 +126,7 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
         rounds.parameters = rounds.joint.parameters
         if not experiments.sines:
             break
-        if curvature is False and held_first:
+        if held_first and k == 0:
             held_chi2 = rounds.joint.cost
         t1 = time.perf_counter()
         again = classify_records(rounds.parameters, experiments, n_harmonics, experiments.sensor_noise_m)

@@ -362,7 +362,7 @@ def _finish(template, beta, gamma, eps_r, data, problem, method, stats, cost, nf
         np.r_[beta, gamma, eps_r], context="Ogden coefficients (beta, gamma) and eps_r",
     )
     fitted = tuple(n.removesuffix("_Pa") for n in stats.names) if stats is not None else ()
-    warnings = list(warnings) + [ogden_warning(ogden_stats, fitted) if len(fitted) >= 2 else ogden_warning(ogden_stats)]
+    warnings = list(warnings) + [ogden_warning(ogden_stats, *([fitted] if fitted else []))]
     return StaticFitResult(
         parameters=params, method=method, statistics=stats, ogden_statistics=ogden_stats,
         mass_kg=data.mass_kg, voltage_V=data.voltage_V, measured_m=data.displacement_m,

@@ -20,7 +20,7 @@ from .csv_io import read_csv_columns, write_csv_columns
 from .data import GEOMETRY_FIELDS, WAVEFORMS, ExperimentSet, SineData, SineSeries, StaticData, StepData
 from .manifest import FORMAT, KINDS, load_experiment_set, write_experiment_set
 from .quality import data_warnings, estimate_noise_m, rest_warning, step_settling_warning
-from .records import period_weights, periodic_input_from_record, rms_statistics, third_difference_noise
+from .records import detrended_rms, period_weights, periodic_input_from_record, rms_statistics, third_difference_noise
 
 __all__ = [
     "FORMAT",
@@ -45,4 +45,5 @@ __all__ = [
     "rms_statistics",
     "periodic_input_from_record",
     "third_difference_noise",
+    "detrended_rms",
 ]

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from .data import ExperimentSet, StaticData, StepData
-from .records import third_difference_noise
+from .records import detrended_rms, third_difference_noise
 
 __all__ = ["estimate_noise_m", "rest_warning", "step_settling_warning", "static_motion_warning", "data_warnings"]
 
@@ -38,9 +38,7 @@ def rest_warning(step: StepData, noise_m: float | None) -> str | None:
     base = step.displacement_m[:k0]
     if base.size < 10 or noise_m is None:
         return None
-    t = step.time_s[:k0]
-    trend = np.polyval(np.polyfit(t - t[0], base, 1), t - t[0])
-    spread = float(np.std(base - trend))
+    spread = detrended_rms(step.time_s[:k0], base)
     if spread > 3.0 * noise_m:
         return (
             f"{step.source}: the record does not start at rest: before the step the displacement varies by "

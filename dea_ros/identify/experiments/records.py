@@ -17,7 +17,8 @@ import numpy as np
 from ...errors import ExperimentError
 from ...solvers.inputs import SampledPeriodic
 
-__all__ = ["period_weights", "rms_statistics", "third_difference_noise", "periodic_input_from_record"]
+__all__ = ["period_weights", "rms_statistics", "third_difference_noise", "detrended_rms",
+           "periodic_input_from_record"]
 
 
 def periodic_input_from_record(time_s, voltage_V, frequency_Hz: float, hold: str = "linear",
@@ -152,3 +153,12 @@ def third_difference_noise(d, min_samples: int = 20) -> float | None:
     d3 = np.diff(d, 3)
     mad = float(np.median(np.abs(d3 - np.median(d3))))
     return 1.4826 * mad / math.sqrt(20.0)
+
+
+def detrended_rms(time_s, d) -> float:
+    """RMS of samples ``d`` about their least-squares straight line in ``time_s`` (m): the laser noise
+    alone where the membrane is at rest or drifting uniformly, more where it still rings or creeps."""
+    t = np.asarray(time_s, float)
+    t = t - t[0]
+    d = np.asarray(d, float)
+    return float(np.std(d - np.polyval(np.polyfit(t, d, 1), t)))
