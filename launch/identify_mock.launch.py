@@ -74,7 +74,9 @@ def generate_launch_description():
                           "clock_rate_hz": rate, "lockstep": True,
                           # the clock waits for the amplifier's receipt of each command (batch) and
                           # stands while nobody acknowledges (the identification after the protocol)
-                          "lockstep_topics": ["amplifier_node/command_received"], "pause_when_idle": True}]),
+                          "lockstep_topics": ["amplifier_node/command_received"], "pause_when_idle": True,
+                          # the ticks of one batch of commands per /clock message (the amplifier runs each)
+                          "max_ticks_per_clock": 50}]),
         LifecycleNode(package="dea_ros", executable="amplifier_node", name="amplifier_node", namespace=ns,
                       output="screen",
                       parameters=[os.path.join(config, "amplifier.yaml"),

@@ -114,6 +114,10 @@ class RigProcesses:
 #: a command, and a run that hears no output for 1 s commands from its clock again.
 DEFAULT_COMMAND_BATCH = 25
 
+#: The mock rig's ``max_ticks_per_clock`` in simulated time: the ticks of one batch of commands per /clock
+#: message (amplifier_node runs one update per tick of it; docs/benchmarks.md "Issue 22 (session 16)").
+MAX_TICKS_PER_CLOCK = 50
+
 #: When each node of ``dea-ros rig up`` starts, s after the first: the mock first (its emulator and
 #: amplifier receiver), the others once it is up.
 DEFAULT_START_DELAYS_S = {"mock_hardware_node": 0.0, "amplifier_node": 1.0, "model_node": 1.0,
@@ -122,10 +126,12 @@ DEFAULT_START_DELAYS_S = {"mock_hardware_node": 0.0, "amplifier_node": 1.0, "mod
 
 def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, laser_rate_hz: float,
               update_rate_hz: float, true_params: str | None = None, noise_m: float = 1e-6,
-              model: bool = True, start_delays_s: dict[str, float] | None = None) -> None:
+              model: bool = True, start_delays_s: dict[str, float] | None = None,
+              max_ticks_per_clock: int = MAX_TICKS_PER_CLOCK) -> None:
     """Start the rig's nodes (model_node only with ``model``), each ``start_delays_s[node]`` s after the
     call (default :data:`DEFAULT_START_DELAYS_S`), in the order of their delays: any order must work,
-    as on a lab PC where processes start when they start (a sensor that streamed unread meanwhile included)."""
+    as on a lab PC where processes start when they start (a sensor that streamed unread meanwhile included).
+    ``max_ticks_per_clock``: the mock rig's, in simulated time (1: one /clock message per tick)."""
     port = _free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
@@ -137,7 +143,7 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
         # command applied one update later
         mock.update(publish_clock=True, real_time_factor=speed, laser_output="topic", clock_rate_hz=update_rate_hz,
                     lockstep_topics="[amplifier_node/command_received]",
-                    pause_when_idle=True)
+                    pause_when_idle=True, max_ticks_per_clock=max_ticks_per_clock)
     else:
         mock.update(laser_output="emulator", laser_port=link)
     common = {"use_sim_time": sim_time}

@@ -95,11 +95,15 @@ from .common import (
 )
 from .runner import run_nodes
 
-__all__ = ["AmplifierNode", "main", "PARAMETERS", "SIM_CLOCK_STALL_S"]
+__all__ = ["AmplifierNode", "main", "PARAMETERS", "SIM_CLOCK_STALL_S", "MAX_CATCH_UP_UPDATES"]
 
 #: Simulated time: when the simulated clock has not advanced an update for this long on the
 #: wall clock, the output is ramped to 0 V on the wall clock (latched until deactivate/activate).
 SIM_CLOCK_STALL_S = 2.0
+
+#: Simulated time: a /clock advance of 2 to this many update periods is that many updates (the mock rig's
+#: ticks of one batch per /clock, ``max_ticks_per_clock``); a larger jump is one update.
+MAX_CATCH_UP_UPDATES = 64
 
 #: name -> (default, description). Every one is read-only: fixed at start-up.
 PARAMETERS = AMPLIFIER_PARAMETERS
@@ -153,6 +157,7 @@ class AmplifierNode(LifecycleNode):
         self.stamp_ros_s: float | int = 0.0  # s (simulated time) or ns (an int: real time)
         self.mono_to_ros_ns = 0
         self.last_sim_s: float | None = None
+        self.last_sim_ns: int | None = None   # simulated time of the last update, ns
         self.previous_output_V = 0.0
         self.monitor_V: float | None = None
         self.gain_check: GainLoopCheck | None = None   # running on activation (monitor wired)
@@ -198,12 +203,14 @@ class AmplifierNode(LifecycleNode):
                 self.enter_fault(f"{callback.__name__} raised {type(exc).__name__}: {exc}")
         return run
 
-    def _control_time(self, source: str) -> float:
+    def _control_time(self, source: str, sim_ns: int | None = None) -> float:
         """Advance and return the controller's time, s. ``source``: "update" (the update timer) or
-        "wall" (shutdown ramps, the stall backstop). Sets the stamp of the next datagram."""
+        "wall" (shutdown ramps, the stall backstop); ``sim_ns``: the update's simulated time, ns (default:
+        the node's clock). Sets the stamp of the next datagram."""
         mono = time.monotonic()
         if self.sim_time and source == "update":
-            sim = self.now_s()
+            self.last_sim_ns = self.get_clock().now().nanoseconds if sim_ns is None else int(sim_ns)
+            sim = self.last_sim_ns * 1e-9
             self.last_sim_s = self.stamp_ros_s = self.stamp_s = sim
             return self.control_clock.advance(sim, "sim")
         if not self.sim_time:
@@ -516,13 +523,40 @@ class AmplifierNode(LifecycleNode):
         base_s = min(first_s, next_s) if math.isfinite(first_s) else next_s
         return max(0, int(round((base_s + (n_updates - 2) * self.update_period_s) * 1e9)))
 
-    def on_update(self, source: str = "update") -> None:
+    def on_update(self) -> None:
+        """The update timer: one update (real time), or in simulated time one per update period the clock
+        advanced since the last (:meth:`_update_times_ns`)."""
+        for sim_ns in self._update_times_ns() if self.sim_time else [None]:
+            if not self._update_once(sim_ns):
+                return
+
+    def _update_times_ns(self) -> list[int]:
+        """Simulated time: the updates due since the last one, ns. The mock rig advances ``/clock`` by several
+        ticks at once while a batch of commands covers them (its ``max_ticks_per_clock``): each of those ticks
+        is an update here, on the update grid, so each batched sample is applied at its own update and passes
+        the limits there, and each output goes out stamped with its own time. A jump of more than
+        :data:`MAX_CATCH_UP_UPDATES` periods (or backwards) is one update, as any clock jump: the controller's
+        time then advances one period at most (ControlClock). None is due when the clock has not moved since
+        the last update (rcl calls a timer once more at the instant a jump ends on its grid)."""
+        now_ns = self.get_clock().now().nanoseconds
+        last_ns = self.last_sim_ns
+        period_ns = int(round(self.update_period_s * 1e9))
+        n = int(round((now_ns - last_ns) / period_ns)) if last_ns is not None else 1
+        if last_ns is not None and 0 <= now_ns - last_ns < period_ns // 2:
+            return []
+        if not 2 <= n <= MAX_CATCH_UP_UPDATES:
+            return [now_ns]
+        return [now_ns - (n - 1 - i) * period_ns for i in range(n)]
+
+    def _update_once(self, sim_ns: int | None = None) -> bool:
+        """One update of the output (``sim_ns``: its simulated time, ns); False when the node faulted or is
+        not running."""
         if self.controller is None or self.backend is None or not self.backend.is_open or self._shutting_down:
-            return
-        t = self._control_time(source)
+            return False
+        t = self._control_time("update", sim_ns)
         if self.gain_check is not None:
             self.controller.command(self.gain_check.command_at(t), t)   # through the limits (ceiling, slew)
-        elif self.batch_queue is not None and len(self.batch_queue) and source == "update":
+        elif self.batch_queue is not None and len(self.batch_queue):
             sample_V = self.batch_queue.take(self.last_sim_s)   # this update's sample, as a command
             if sample_V is not None:
                 result = self.controller.command(sample_V, t)
@@ -532,21 +566,22 @@ class AmplifierNode(LifecycleNode):
         u = self.controller.update(t)
         if not self.write(u):
             self.enter_fault(f"backend write failed: {self.backend_fault}")
-            return
+            return False
         if self.expected.monitor_channel is not None:
             problem = self._monitor_problem(u, self.previous_output_V)
             if problem is not None:
                 if self.gain_check is not None and u > 0.0 and self.monitor_V is not None:   # during the check
                     problem = f"{problem}; {self.gain_check.judge(u, self.monitor_V).message}"
                 self.enter_fault(problem)
-                return
+                return False
             if self.gain_check is not None and not self._step_gain_check(t, u):
-                return
+                return False
         self.previous_output_V = u
         self._set_enabled(self.controller.is_activated or u > 0.0)
         self.last_update_wall_s = time.monotonic()
         if self.voltage_pub is not None:
             self.voltage_pub.publish(make_voltage_state(u, self.stamp_ros_s, self.controller.is_activated))
+        return True
 
     def on_backstop(self) -> None:
         """Simulated time only: when the simulated clock stalls, ramp to 0 V on the wall clock."""

@@ -362,8 +362,9 @@ class IdentifierNode(Node):
             return
         self.last_trigger_ns = stamp_ns
         if stamp_ns < now_ns - self.period_ns // 2:
-            self.outputs_behind_clock += 1
-            return
+            if self.batch_end_ns is None or stamp_ns > self.batch_end_ns + self.period_ns // 2:
+                self.outputs_behind_clock += 1   # (not an update of the batch in hand: the rig's /clock advances
+            return                               # a batch's ticks at once, and its outputs come after it)
         self.last_trigger_wall_s = time.monotonic()
         self.on_tick(stamp_ns)
 

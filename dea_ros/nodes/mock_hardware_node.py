@@ -107,6 +107,7 @@ class MockHardwareNode(Node):
         self.ack_times: dict = {}
         self.acks_received = 0                   # lockstep acknowledgements (all participants)
         self.paused = False                      # pause_when_idle: no participant active, the clock stands
+        self.clock_jumps = 0                     # /clock messages that advanced more than one tick
         if self.publish_clock and self.lockstep:
             for topic in self.lockstep_topics:
                 self.create_subscription(Header, topic, self.on_ack(topic), 10)
@@ -171,6 +172,10 @@ class MockHardwareNode(Node):
                                             "simulated clock advances (lockstep), e.g. identifier_node/tick_done, "
                                             "amplifier_node/command_received")).value
         self.seed = declare_int(self, "seed", 0, "noise seed", 0, 2**31 - 1)
+        self.max_ticks_per_clock = declare_int(
+            self, "max_ticks_per_clock", 1,
+            "lockstep: at most this many ticks per /clock message, taken only while every active participant's "
+            "acknowledgement covers them (a batch of commands); 1: one /clock per tick", 1, 1000)
 
     def _membrane(self) -> MembraneParameters:
         """The true membrane (``params_file``), once the laser output and the clock are a valid combination."""
@@ -376,9 +381,17 @@ class MockHardwareNode(Node):
             behind = self.participants_behind()
             if behind is not None and not self._waited_too_long(behind):
                 return
-        self.tick_index += 1
+        n_ticks = self._ticks_covered()
+        self.tick_index += n_ticks
+        if n_ticks > 1:
+            self.clock_jumps += 1
+            if self.clock_jumps == 1:
+                self.get_logger().info(f"lockstep: /clock advances up to {self.max_ticks_per_clock} ticks at once "
+                                       f"while the acknowledgements cover them (first: {n_ticks})")
         t_new = self.sim.t0_s + self.tick_index / self.clock_rate_hz
-        self.sim.advance_to(t_new)
+        # up to the first of the ticks only: the amplifier's outputs for the others are applied, each from its
+        # own update time, when they arrive (RigSimulator.apply_voltage integrates up to it first)
+        self.sim.advance_to(self.sim.t0_s + (self.tick_index - n_ticks + 1) / self.clock_rate_hz)
         self.clock_time_s = t_new
         self.samples_out = False
         self.tick_wall_s = time.monotonic()
@@ -386,6 +399,27 @@ class MockHardwareNode(Node):
         self.release_samples()  # at once when the amplifier is not waited for
         if not (self.lockstep and (self.amp_time_s is not None or self.ack_times)) and self.timer.is_canceled():
             self._rearm_timer()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
+
+    def _ticks_covered(self) -> int:
+        """How many ticks the next ``/clock`` advances (``max_ticks_per_clock``): 1, or while every active
+        participant has acknowledged ahead (amplifier_node acknowledges a batch of K commands once, stamped
+        with the update before its last sample's) the ticks that acknowledgement covers, within the pace of
+        ``real_time_factor``. The physics is the same as tick by tick: the amplifier runs one update per tick
+        (each sample through its limits) and its outputs hold from their own update times; the laser samples
+        of those ticks go out after the last output, as after each output with one tick per /clock. A
+        participant that acknowledges each tick (a controller's ``tick_done``, a single ``voltage_cmd``)
+        keeps one tick per /clock: the fixed sample-to-voltage delay does not change."""
+        if self.max_ticks_per_clock <= 1 or not self.lockstep or self.clock_time_s is None:
+            return 1
+        now = time.monotonic()
+        stamps = [stamp_s for stamp_s, wall_s in self.ack_times.values() if now - wall_s < self.lockstep_timeout_s]
+        if not stamps:
+            return 1
+        period_s = 1.0 / self.clock_rate_hz
+        # tick k + i may start once every participant acknowledged tick k + i - 1 (half a tick of rounding)
+        covered = math.floor((min(stamps) - self.clock_time_s + 0.5 * period_s) / period_s) + 1
+        paced = math.floor((now - self.wall_t0) * self.real_time_factor * self.clock_rate_hz - self.tick_index) + 1
+        return max(1, min(covered, paced, self.max_ticks_per_clock))
 
     def publish_clock_time(self) -> None:
         """Publish ``/clock`` = the current tick's time."""
@@ -407,7 +441,8 @@ class MockHardwareNode(Node):
              ("amplifier_datagrams", self.receiver.received_count), ("sim_lag_s", f"{lag:.3f}"),
              ("amplifier_deadman_trips", self.receiver.deadman_trip_count),
              ("lockstep_timeouts", self.lockstep_timeouts), ("lockstep", self.lockstep_state()),
-             ("lockstep_acks", self.acks_received)],
+             ("lockstep_acks", self.acks_received), ("clock_ticks", self.tick_index),
+             ("clock_messages_of_several_ticks", self.clock_jumps)],
         )
 
     def lockstep_state(self) -> str:
