@@ -55,7 +55,7 @@ def generate_launch_description():
         DeclareLaunchArgument("true_params", default_value=os.path.join(config, "rig", "mock_membrane.yaml"),
                               description="the simulated membrane (preset or YAML)"),
         DeclareLaunchArgument("protocol", default_value="paper", description="paper, quick, test or a YAML"),
-        DeclareLaunchArgument("speed", default_value="3.0", description="simulated seconds per wall second (max)"),
+        DeclareLaunchArgument("speed", default_value="10.0", description="simulated seconds per wall second (max)"),
         DeclareLaunchArgument("rate", default_value="250.0", description="command, amplifier and clock rate, Hz"),
         DeclareLaunchArgument("laser_rate", default_value="500.0", description="displacement sample rate, Hz"),
         DeclareLaunchArgument("noise", default_value="1.0e-6", description="laser noise sigma, m"),

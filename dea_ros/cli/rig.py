@@ -358,8 +358,9 @@ def register(subparsers) -> None:
                            "config/), or 'same' for --membrane (default: rig/mock_membrane.yaml, A2 with "
                            "different material parameters)")
     demo.add_argument("--protocol", default="paper", help="protocol in config/protocols (paper, quick) or a YAML")
-    demo.add_argument("--speed", type=float, default=3.0,
-                      help="upper bound of simulated seconds per wall-clock second (lockstep may be slower)")
+    demo.add_argument("--speed", type=float, default=10.0,
+                      help="upper bound of simulated seconds per wall-clock second (lockstep may be slower; "
+                           "on 2 cores the 'paper' protocol runs at ~x6-8)")
     demo.add_argument("--rate", type=float, default=250.0,
                       help="command/amplifier/clock rate, Hz (simulated; sines are fitted against the applied "
                            "waveform, so its zero-order hold does not bias the fit)")

@@ -29,7 +29,9 @@ Time: slew, ramp and watchdog run on ``time.monotonic`` (the update timer is a s
 no ROS time change can stall or jump them. Simulated time (``use_sim_time``, set at start-up)
 is accepted only with the ``mock`` backend; then the update follows the simulated clock (the
 mock rig runs lockstep with it), each update advancing the controller by at most one update
-period (:class:`~dea_ros.hardware.amplifier.safety.ControlClock`), and a wall-clock backstop
+period (:class:`~dea_ros.hardware.amplifier.safety.ControlClock`); a clock that advanced 2 to
+:data:`MAX_CATCH_UP_UPDATES` periods since the last update (the mock rig's ticks of one batch per
+``/clock``) is that many updates, one per period, and a wall-clock backstop
 ramps to 0 V when the simulated clock stalls for ``SIM_CLOCK_STALL_S``. In simulated time the node
 also acknowledges every ``voltage_cmd`` it receives on ``~/command_received`` (std_msgs/Header
 stamped with the simulated time of receipt; nothing else): with that topic in the mock rig's

@@ -33,6 +33,14 @@ k (time t_k) runs in a fixed order:
    (std_msgs/Header stamped >= t_k: identifier_node's ``~/tick_done``, position_controller_node's
    ``~/tick_done``, amplifier_node's ``~/command_received``), then tick k + 1 begins.
 
+With ``max_ticks_per_clock`` > 1 (``dea-ros rig demo``: 50) one ``/clock`` message advances every tick that
+the acknowledgements already cover (amplifier_node acknowledges a batch of K commands once, for its K
+updates): the membrane is integrated to the first of them, amplifier_node runs one update per tick and
+sends each output stamped with its tick, the mock applies each from that time, and the laser samples of
+those ticks go out after the last output. The physics and the samples are those of one tick per ``/clock``
+(test_command_batch_rig); the messages per tick fall from five to three. A participant that acknowledges
+each tick (a controller) keeps one tick per ``/clock``.
+
 A participant is active while it acknowledged within ``lockstep_timeout_s`` of wall time; a wait
 longer than that continues anyway (counted in ``lockstep_timeouts``). ``real_time_factor`` is an
 upper bound. With amplifier_node's ``~/command_received`` in ``lockstep_topics`` the clock does

@@ -75,6 +75,20 @@ class LockstepMaster:
                     t_again = time.monotonic() + 0.5
                 assert time.monotonic() < t_end, "no datagram for the update"
 
+    def jump(self, n, timeout_s=5.0):
+        """Advance the clock n updates in one /clock message (the mock rig over a batch's ticks); wait for the
+        amplifier's datagram for the new time. Returns the datagrams it sent for the jump."""
+        before = len(self.capture.snapshot())
+        self.t += n * PERIOD
+        self.publish_clock()
+        t_end = time.monotonic() + timeout_s
+        while self.capture.snapshot()[-1].sent_s < self.t - PERIOD / 2:
+            self.ex.spin_once(timeout_sec=0.001)
+            assert time.monotonic() < t_end, "no datagram for the update"
+        time.sleep(0.05)   # (a second call of the timer at the jump's end must add nothing)
+        self.ex.spin_once(timeout_sec=0.001)
+        return self.capture.snapshot()[before:]
+
     def send(self, values, first_s=None, offsets=None):
         """A batch (default: for the next update, one sample per update); waits for the acknowledgement."""
         msg = JointTrajectory(joint_names=["dea_voltage"])
@@ -131,6 +145,39 @@ def test_a_batch_is_applied_one_sample_per_update_and_acknowledged_once(ros_cont
         # then the dead-man: no more commands, the output holds for the watchdog and ramps down
         master.tick(int(WATCHDOG_S / PERIOD) + 30)
         assert master.voltage_at(master.t) < values[-1]
+        H.check_safe(capture.snapshot(), CEILING, SLEW, sim_period_s=PERIOD)
+    finally:
+        master.close()
+        H.stop(proc)
+        capture.close()
+
+
+def test_a_clock_advancing_a_batch_at_once_is_one_update_per_period(ros_context):
+    """The mock rig advances /clock over a batch's ticks in one message (max_ticks_per_clock): the amplifier
+    runs one update per period, each sample at its own update through the limits, each datagram stamped
+    with its update's time. A longer jump (> MAX_CATCH_UP_UPDATES periods) stays one update (ControlClock)."""
+    from dea_ros.nodes.amplifier_node import MAX_CATCH_UP_UPDATES
+
+    capture = H.Capture()
+    proc, master = _start(ros_context, capture, "/batch_jump")
+    try:
+        values = [40.0 * (i + 1) for i in range(25)]      # 40 V per update: under the 80 V slew step
+        t0 = master.t
+        master.send(values)
+        sent = master.jump(25)
+        assert [round((d.sent_s - t0) / PERIOD, 3) for d in sent] == [float(i + 1) for i in range(25)]
+        assert [d.voltage_V for d in sent] == values
+        master.tick(3)
+        before_V = capture.snapshot()[-1].voltage_V
+        n_acks = len(master.acks)
+        master.cmd.publish(Float64(data=before_V + 1000.0))   # a step, as one command
+        t_end = time.monotonic() + 5.0
+        while len(master.acks) == n_acks:
+            master.ex.spin_once(timeout_sec=0.001)
+            assert time.monotonic() < t_end, "the command was not acknowledged"
+        sent = master.jump(MAX_CATCH_UP_UPDATES + 1)
+        assert len(sent) == 1, "a jump beyond the catch-up limit is one update"
+        assert 0.0 < sent[0].voltage_V - before_V <= SLEW * PERIOD + 1e-6   # one update's slew, not 65
         H.check_safe(capture.snapshot(), CEILING, SLEW, sim_period_s=PERIOD)
     finally:
         master.close()
