@@ -306,7 +306,8 @@ def cmd_rig_demo(args) -> int:
     run_name = args.run_name or time.strftime("demo_%Y%m%d_%H%M%S")
     run_dir = out / run_name
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    line = ProgressLine(quiet=args.quiet or args.json)
+    # --json: stdout carries the JSON document only; the rig's warnings go to stderr
+    line = ProgressLine(stream=sys.stderr if args.json else sys.stdout, quiet=args.quiet or args.json)
     rig = RigProcesses(quiet=True, log_dir=run_dir / "logs", on_line=_protocol_lines(line, args.verbose))
     t_start = time.monotonic()
     if not (args.quiet or args.json):

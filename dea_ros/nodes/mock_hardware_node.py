@@ -329,6 +329,8 @@ class MockHardwareNode(Node):
             if topic not in self.ack_times:
                 self.get_logger().info(f"lockstep: {topic} acknowledges ticks; the simulated clock waits for it")
             with self.tick_lock:  # (subscribed with publish_clock only)
+                if not self.ack_times:   # from here on real_time_factor paces (before: real time), no burst
+                    self.wall_t0 = time.monotonic() - self.tick_index / (self.clock_rate_hz * self.real_time_factor)
                 self.ack_times[topic] = (msg.stamp.sec + msg.stamp.nanosec * 1e-9, time.monotonic())
                 self.acks_received += 1
                 self._advance()  # the last acknowledgement starts the next tick without waiting for the timer
@@ -377,7 +379,7 @@ class MockHardwareNode(Node):
         self.poll_amplifier()
         if not self.samples_out and not self.release_samples():
             return
-        if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self.real_time_factor:
+        if self.tick_index / self.clock_rate_hz > (time.monotonic() - self.wall_t0) * self._pace():
             if self.timer.is_canceled():
                 self._rearm_timer()
             return  # ahead of the requested speed: the pacing timer calls again
@@ -408,6 +410,15 @@ class MockHardwareNode(Node):
         if not (self.lockstep and (self.amp_time_s is not None or self.ack_times)) and self.timer.is_canceled():
             self._rearm_timer()  # nothing will wake the node (no amplifier yet, no lockstep): the timer paces
 
+    def _pace(self) -> float:
+        """Simulated s per wall s at most: ``real_time_factor``, but at most real time while the lockstep has not
+        engaged (no acknowledgement yet; the nodes are starting). A node that starts on a clock running ahead of
+        it acts on ticks already past: at x10 a tick lasts 0.4 ms of wall time, and the identifier's first batch
+        of commands arrived after the update it was for (refused as stale, its 25 updates left at 0 V)."""
+        if self.lockstep and not self.ack_times:
+            return min(1.0, self.real_time_factor)
+        return self.real_time_factor
+
     def _ticks_covered(self) -> int:
         """How many ticks the next ``/clock`` advances (``max_ticks_per_clock``): 1, or while every active
         participant has acknowledged ahead (amplifier_node acknowledges a batch of K commands once, stamped
@@ -426,7 +437,7 @@ class MockHardwareNode(Node):
         period_s = 1.0 / self.clock_rate_hz
         # tick k + i may start once every participant acknowledged tick k + i - 1 (half a tick of rounding)
         covered = math.floor((min(stamps) - self.clock_time_s + 0.5 * period_s) / period_s) + 1
-        paced = math.floor((now - self.wall_t0) * self.real_time_factor * self.clock_rate_hz - self.tick_index) + 1
+        paced = math.floor((now - self.wall_t0) * self._pace() * self.clock_rate_hz - self.tick_index) + 1
         return max(1, min(covered, paced, self.max_ticks_per_clock))
 
     def publish_clock_time(self) -> None:
