@@ -56,6 +56,11 @@ class HarmonicBalanceError(DeaRosError, RuntimeError):
     """Harmonic balance did not converge (the message says how far it got and what to try)."""
 
 
+class FallbackRefused(HarmonicBalanceError):
+    """Harmonic balance failed at a point of an optimiser's scan or trial where forward integration is not
+    spent (identify.dynamic_objective): the point is skipped or rejected, not integrated."""
+
+
 class ContinuationError(DeaRosError, RuntimeError):
     """The continuation could not follow the branch (step size underflow)."""
 

@@ -34,7 +34,7 @@ from ..errors import DynamicFitError
 from ..model.dynamics import DEAModel
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..errors import HarmonicBalanceError
+from ..errors import FallbackRefused, HarmonicBalanceError
 from ..solvers.steady_state import SteadyStateError
 from ..solvers.transient import TransientError
 from .dynamic_objective import CURVATURE_UNIT_PA, PAPER_WEIGHTS, DynamicObjective
@@ -168,9 +168,12 @@ def _linearisation(params: MembraneParameters, voltage_V: float, mass_kg: float)
     return k_s, g
 
 
-def _profile_at_tau(objective: DynamicObjective, theta0: np.ndarray, log_tau: float, max_nfev: int):
+def _profile_at_tau(objective: DynamicObjective, theta0: np.ndarray, log_tau: float, max_nfev: int,
+                    policy: str = "trial"):
     """(cost, theta): eq. 22 minimised over ln k1 and ln eta2 with the creep time eta1/k1 held at
-    exp(``log_tau``) (the profile of the cost over the creep time), from ``theta0``."""
+    exp(``log_tau``) (the profile of the cost over the creep time), from ``theta0``. ``policy``: the fallback
+    of the trial points (FALLBACK_POLICIES); the start integrates where harmonic balance fails unless it is
+    "never" (then FallbackRefused)."""
     lo, hi = _bounds(objective.n_params)
     rest = np.asarray(theta0[3:], float)
 
@@ -184,9 +187,31 @@ def _profile_at_tau(objective: DynamicObjective, theta0: np.ndarray, log_tau: fl
     x_lo = np.array([max(lo[0], lo[1] - log_tau), lo[2]]) + 1e-6
     x_hi = np.array([min(hi[0], hi[1] - log_tau), hi[2]]) - 1e-6
     x0 = np.clip([theta0[0], theta0[2]], x_lo, x_hi)
-    sol = least_squares(lambda x: objective.residuals(full(x)), x0, jac=jac, bounds=(x_lo, x_hi),
-                        method="trf", x_scale=1.0, ftol=1e-6, xtol=1e-6, max_nfev=max_nfev)
+    with objective.fallback("never" if policy == "never" else "integrate"):
+        objective.residuals(full(x0))   # the start (cached)
+    with objective.fallback(policy):
+        sol = least_squares(lambda x: objective.trial_residuals(full(x)), x0, jac=jac, bounds=(x_lo, x_hi),
+                            method="trf", x_scale=1.0, ftol=1e-6, xtol=1e-6, max_nfev=max_nfev)
     return float(sol.fun @ sol.fun), full(sol.x)
+
+
+def _profile_scan(objective: DynamicObjective, starts: list, profile_evaluations: int, policy: str
+                  ) -> tuple[list, list]:
+    """The profile at each (tau, theta) of ``starts`` with the fallback ``policy``: the (cost, tau, theta) found,
+    and the taus skipped because harmonic balance failed at their start and the policy refused integration."""
+    candidates, skipped = [], []
+    for tau, theta in starts:
+        try:
+            cost, theta = _profile_at_tau(objective, theta, math.log(tau), profile_evaluations, policy)
+        except FallbackRefused as exc:
+            LOG.debug("initial guess: tau %.3g s skipped (%s)", tau, exc)
+            skipped.append(tau)
+            continue
+        except (TransientError, HarmonicBalanceError, SteadyStateError, FloatingPointError) as exc:
+            LOG.debug("initial guess: tau %.3g s failed (%s)", tau, exc)
+            continue
+        candidates.append((cost, tau, theta))
+    return candidates, skipped
 
 
 def initial_guess(objective: DynamicObjective, taus_s=None, profile_evaluations: int = 12
@@ -228,8 +253,8 @@ def initial_guess(objective: DynamicObjective, taus_s=None, profile_evaluations:
     info.update({"oscillation_Hz": f_osc, "decay_rate_per_s": alpha})
     taus = np.logspace(-2, 2, 9) if taus_s is None else np.asarray(taus_s, float)
     lo, hi = _bounds(3)
-    candidates = []
     w2 = omega**2 + alpha**2
+    starts = []
     for tau in taus:
         wt2 = (omega * tau) ** 2
         kv = (w2 - k_s) * (1.0 + wt2) / wt2           # G k1 from the stored-stiffness part
@@ -239,13 +264,16 @@ def initial_guess(objective: DynamicObjective, taus_s=None, profile_evaluations:
         c_ve = kv * tau / (1.0 + wt2)                   # damping of the Maxwell branch
         c_2 = max(2.0 * alpha - c_ve, 0.05 * 2.0 * alpha)
         eta2 = c_2 / g
-        theta = objective.start_vector(*np.exp(np.clip(np.log([k1, k1 * tau, eta2]), lo + 1e-6, hi - 1e-6)))
-        try:
-            cost, theta = _profile_at_tau(objective, theta, math.log(tau), profile_evaluations)
-        except (TransientError, HarmonicBalanceError, SteadyStateError, FloatingPointError) as exc:
-            LOG.debug("initial guess: tau %.3g s failed (%s)", tau, exc)
-            continue
-        candidates.append((cost, float(tau), theta))
+        starts.append((float(tau), objective.start_vector(
+            *np.exp(np.clip(np.log([k1, k1 * tau, eta2]), lo + 1e-6, hi - 1e-6)))))
+    # The scan without forward integration: a creep time at whose start harmonic balance fails is skipped
+    # (integrating there cost minutes per start on slow-creep membranes); only if every one is, with it.
+    candidates, skipped = _profile_scan(objective, starts, profile_evaluations, "never")
+    if not candidates and skipped:
+        candidates, _ = _profile_scan(objective, [s for s in starts if s[0] in skipped], profile_evaluations,
+                                      "trial")
+    elif skipped:
+        info["scan_skipped_tau_s"] = skipped
     if not candidates:
         raise DynamicFitError("dynamic fit: every initial-guess simulation failed; check the static "
                               "parameters and the data (is the mass right?)")
@@ -383,9 +411,11 @@ def _optimise(objective: DynamicObjective, x0, method: str, lo, hi, max_evaluati
     """(theta, cost, message, converged) of one local optimisation from ``x0``: least squares with the
     exact Jacobian ("lsq") or the paper's Nelder-Mead on normalised k1, eta1, eta2 ("paper")."""
     if method == "lsq":
-        sol = least_squares(objective.residuals, x0, jac=objective.jacobian, bounds=(lo, hi),
-                            method="trf", x_scale=1.0, ftol=1e-9, xtol=1e-9, gtol=1e-10,
-                            max_nfev=max_evaluations)
+        objective.residuals(x0)   # the start (cached): integrated where harmonic balance fails, never rejected
+        with objective.fallback("trial"):
+            sol = least_squares(objective.trial_residuals, x0, jac=objective.jacobian, bounds=(lo, hi),
+                                method="trf", x_scale=1.0, ftol=1e-9, xtol=1e-9, gtol=1e-10,
+                                max_nfev=max_evaluations)
         return sol.x, float(sol.fun @ sol.fun), sol.message, sol.status > 0
     norm = np.array(PAPER_NORMALISATION)
 

@@ -32,6 +32,7 @@ response near resonance; ``curvature_direction`` makes it a 4th parameter.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import time
@@ -42,7 +43,7 @@ import numpy as np
 from ..errors import DynamicFitError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
-from ..errors import HarmonicBalanceError
+from ..errors import FallbackRefused, HarmonicBalanceError
 from ..solvers.periodic_solution import PeriodicSolution
 from ..solvers.inputs import SinePeriodic
 from ..solvers.steady_state import integrate_to_steady_state
@@ -51,7 +52,8 @@ from .experiments import StepData, estimate_noise_m
 from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
 from .static_fit import stress_combinations
 
-__all__ = ["DynamicObjective", "resolve_weights", "PAPER_WEIGHTS", "FREQUENCY_METHODS", "CURVATURE_UNIT_PA"]
+__all__ = ["DynamicObjective", "resolve_weights", "PAPER_WEIGHTS", "FREQUENCY_METHODS", "CURVATURE_UNIT_PA",
+           "MAX_FALLBACK_TRIALS", "FALLBACK_POLICIES"]
 
 LOG = logging.getLogger("dea_ros.identify")
 
@@ -60,6 +62,18 @@ PAPER_WEIGHTS = {"step": 6.6e6, "hbm": 0.1e6}
 FREQUENCY_METHODS = ("hbm", "integration")
 #: Unit of the curvature coordinate of the optimizer (sigma_h''(1) in MPa).
 CURVATURE_UNIT_PA = 1e6
+#: Trial points of a local fit (fallback policy "trial") whose evaluation may fall back to forward integration
+#: where harmonic balance fails, per objective. Each such evaluation integrates to the periodic state
+#: (1 + parameters) times per failing frequency: minutes on a slow-creep membrane (F04 of the coverage
+#: family: 1510 s for one identification; F13 seeds 2-3: > 20 min). Beyond these, a trial point where harmonic
+#: balance fails is rejected (non-finite residuals: least_squares' trust region shrinks back towards the last
+#: accepted point), as in the joint refinement. Starts, accepted points and the result always integrate.
+MAX_FALLBACK_TRIALS = 8
+
+#: Where forward integration replaces a failed harmonic balance (DynamicObjective.fallback): "integrate"
+#: (always; the default), "trial" (the first MAX_FALLBACK_TRIALS evaluations, then FallbackRefused), "never"
+#: (FallbackRefused: the initial guess's profile scan skips such a creep time).
+FALLBACK_POLICIES = ("integrate", "trial", "never")
 
 
 def resolve_weights(weights, steps: Sequence[StepData], points: Sequence[FrequencyPoint],
@@ -158,6 +172,9 @@ class DynamicObjective:
         self.time_frequency_s = 0.0
         self.history: list[dict] = []
         self.fallbacks: list[str] = []
+        self.fallback_trials = 0     # trial evaluations that integrated where harmonic balance failed
+        self.rejected_trials = 0     # trial points rejected instead (FallbackRefused)
+        self.fallback_policy = "integrate"   # see FALLBACK_POLICIES; set with the fallback() context
 
     # -------------------------------------------------------------- parameters
     def parameters(self, theta) -> MembraneParameters:
@@ -229,6 +246,7 @@ class DynamicObjective:
         (the integration method then only adds the finite differences)."""
         sim = np.empty(len(self.points))
         rows = np.zeros((len(self.points), self.n_params))
+        counted = False
         for k, point in enumerate(self.points):
             p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
             d0, dd0 = self.rest(params, point.mass_kg)
@@ -241,11 +259,13 @@ class DynamicObjective:
                         sim[k] = sol.displacement_rms(d0)
                     continue
                 except HarmonicBalanceError as exc:
+                    self._hb_guess.pop(k, None)
+                    self._fallback_allowed(point, exc, counted)
+                    counted = True
                     msg = (f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
                            "used forward integration for that evaluation")
                     self.fallbacks.append(msg)
                     LOG.warning(msg)
-                    self._hb_guess.pop(k, None)
             sim[k] = known_sim[k] if known_sim is not None else self._integration_rms(p, point)
             if jac:  # forward differences in theta
                 h = 1e-4
@@ -306,8 +326,46 @@ class DynamicObjective:
         # evaluation (least_squares asks for the Jacobian at accepted points).
         return self.evaluate(theta, jacobian=self.frequency_method == "hbm")[0]
 
+    @contextlib.contextmanager
+    def fallback(self, policy: str):
+        """Within the block, where forward integration replaces a failed harmonic balance (FALLBACK_POLICIES)."""
+        if policy not in FALLBACK_POLICIES:
+            raise ValueError(f"fallback policy: one of {FALLBACK_POLICIES}, got {policy!r}")
+        previous, self.fallback_policy = self.fallback_policy, policy
+        try:
+            yield self
+        finally:
+            self.fallback_policy = previous
+
+    def _fallback_allowed(self, point: FrequencyPoint, exc: HarmonicBalanceError, counted: bool) -> None:
+        """Raise FallbackRefused unless the policy lets this evaluation integrate (``counted``: it already does)."""
+        policy = self.fallback_policy
+        if policy == "integrate" or counted:
+            return
+        if policy == "never" or self.fallback_trials >= MAX_FALLBACK_TRIALS:
+            raise FallbackRefused(f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
+                                  f"not integrated (fallback policy {policy!r})") from exc
+        self.fallback_trials += 1
+
+    def trial_residuals(self, theta) -> np.ndarray:
+        """:meth:`residuals` at a trial point of an optimiser (not its start: evaluate that with
+        :meth:`residuals` first): where the fallback policy refuses forward integration, non-finite residuals
+        (least_squares rejects the point and shrinks its trust region)."""
+        try:
+            return self.residuals(theta)
+        except FallbackRefused as exc:
+            self.rejected_trials += 1
+            LOG.info("dynamic fit: trial point rejected (%s)", exc)
+            return np.full(self.n_residuals, np.nan)
+
     def jacobian(self, theta) -> np.ndarray:
-        return self.evaluate(theta, jacobian=True)[1]
+        """At an accepted point (cached from its evaluation; forward integration where harmonic balance fails
+        whatever the policy, should the cache have dropped it)."""
+        try:
+            return self.evaluate(theta, jacobian=True)[1]
+        except FallbackRefused:
+            with self.fallback("integrate"):
+                return self.evaluate(theta, jacobian=True)[1]
 
     def cost(self, theta) -> float:
         """J of eq. 22."""

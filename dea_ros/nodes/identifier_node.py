@@ -75,6 +75,10 @@ __all__ = ["IdentifierNode", "main"]
 #: after which the node commands from its clock again (below amplifier_node's 2 s clock-stall backstop).
 TRIGGER_SILENCE_S = 1.0
 
+#: ``command_trigger: applied_voltage``: ticks of 0 V with the rig ready before the protocol starts (0.1 s at the
+#: demo's 250 Hz; ready_ticks_needed)
+READY_TICKS = 25
+
 RECORDED = (
     (TOPIC_VOLTAGE_CMD, "std_msgs/msg/Float64", Float64, COMMAND_QOS),
     (TOPIC_VOLTAGE_CMD_BATCH, "trajectory_msgs/msg/JointTrajectory", JointTrajectory, COMMAND_QOS),
@@ -161,6 +165,7 @@ class IdentifierNode(Node):
         self.t0_ns: int | None = None
         self.rig_seen = {"voltage_enabled": False, "displacement": False, "amplifier_listening": False}
         self.wait_started = time.monotonic()
+        self.ready_ticks, self.last_ready_ns = 0, -1   # ticks with the rig ready while waiting; the last's time
         self.lock = threading.Lock()
         self.bag: BagWriter | None = None
         self.skipped_before_clock = 0
@@ -385,13 +390,23 @@ class IdentifierNode(Node):
             self.last_trigger_wall_s = time.monotonic()
             self.on_tick()
 
+    def ready_ticks_needed(self) -> int:
+        """Ticks the rig must be seen ready (each commanded 0 V) before the protocol starts: with
+        ``command_trigger: applied_voltage`` :data:`READY_TICKS` (the mock rig's clock runs on its own until its
+        lockstep engages on the first acknowledgement of a command, i.e. on these ticks: a protocol started on
+        the first of them sent its first batch for an update the clock had already passed), else 1."""
+        return READY_TICKS if self.command_trigger == "applied_voltage" else 1
+
     def wait_for_rig(self, now_ns: int) -> None:
-        """A tick before the protocol: 0 V, acknowledged; the rig ready: the protocol runs from the next tick."""
+        """A tick before the protocol: 0 V, acknowledged; the rig ready for ``ready_ticks_needed()`` ticks: the
+        protocol runs from the next tick."""
         self.cmd_pub.publish(Float64(data=0.0))
         self.publish_ack(now_ns)
         if not self.rig_seen["amplifier_listening"]:
             self.rig_seen["amplifier_listening"] = self.amplifier_listening()
-        if all(self.rig_seen.values()):
+        if all(self.rig_seen.values()) and now_ns > self.last_ready_ns:   # a tick with the rig ready
+            self.ready_ticks, self.last_ready_ns = self.ready_ticks + 1, now_ns
+        if self.ready_ticks >= self.ready_ticks_needed():
             self.state, self.t0_ns = "running", None
             for sub in self.ready_subs:  # only needed to start: halve the callbacks
                 self.destroy_subscription(sub)
