@@ -38,8 +38,9 @@ the acknowledgements already cover (amplifier_node acknowledges a batch of K com
 updates): the membrane is integrated to the first of them, amplifier_node runs one update per tick and
 sends each output stamped with its tick, the mock applies each from that time, and the laser samples of
 those ticks go out after the last output. The physics and the samples are those of one tick per ``/clock``
-(test_command_batch_rig); the messages per tick fall from five to three. A participant that acknowledges
-each tick (a controller) keeps one tick per ``/clock``.
+(test_command_batch_rig); one ``/clock`` per batch instead of per tick, so the amplifier's and the identifier's
+executor rounds for it go too (docs/benchmarks.md, issue 22 session 16: x1.85 -> x6.8). A participant that
+acknowledges each tick (a controller) keeps one tick per ``/clock``.
 
 A participant is active while it acknowledged within ``lockstep_timeout_s`` of wall time; a wait
 longer than that continues anyway (counted in ``lockstep_timeouts``). ``real_time_factor`` is an
@@ -412,9 +413,8 @@ class MockHardwareNode(Node):
 
     def _pace(self) -> float:
         """Simulated s per wall s at most: ``real_time_factor``, but at most real time while the lockstep has not
-        engaged (no acknowledgement yet; the nodes are starting). A node that starts on a clock running ahead of
-        it acts on ticks already past: at x10 a tick lasts 0.4 ms of wall time, and the identifier's first batch
-        of commands arrived after the update it was for (refused as stale, its 25 updates left at 0 V)."""
+        engaged (no acknowledgement yet: nothing waits for the nodes, which are starting; at the demo's x10 a
+        tick would last 0.4 ms of wall time)."""
         if self.lockstep and not self.ack_times:
             return min(1.0, self.real_time_factor)
         return self.real_time_factor
