@@ -86,6 +86,7 @@ from ..errors import SafetyConfigError
 from ..hardware.amplifier.limits import SafetyLimits
 from ..hardware.amplifier.safety import ControlClock, SafeVoltageController, drive_to_zero
 from ..model import ParameterError
+from .command_batch_msg import parse_batch
 from .common import (
     COMMAND_QOS,
     SENSOR_QOS,
@@ -497,14 +498,7 @@ class AmplifierNode(LifecycleNode):
         """Simulated time: queue the voltages of the next updates (one per update); acknowledge once."""
         if self.controller is None or self.batch_queue is None:
             return
-        values, offsets = [], []
-        for point in msg.points:
-            if len(point.positions) != 1:
-                values, offsets = [], [0.0] * (len(msg.points) + 1)  # malformed: refused whole
-                break
-            values.append(float(point.positions[0]))
-            offsets.append(point.time_from_start.sec + point.time_from_start.nanosec * 1e-9)
-        first_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        first_s, offsets, values = parse_batch(msg)   # (malformed: refused whole by the queue)
         verdict = self.batch_queue.offer(first_s, offsets, values, self.last_sim_s,
                                          self.controller.is_activated and self.gain_check is None)
         if self.received_pub is not None:

@@ -12,25 +12,21 @@
    flushed at least once a second. As ``ros2 bag record``, a topic enters the bag with the QoS
    offered by each of its publishers discovered when its first message arrives (one profile per
    publisher). ``rosbag2_format``: ``auto`` (= ``humble``, read by every distro), ``humble`` or ``jazzy``.
-4. At the end: 0 V, bag closed, then in a background thread the offline identification
-   (bag -> experiments -> fit) writes ``params.yaml``, ``report/`` and ``summary.json`` beside the bag.
-   A protocol with ``adaptive: true`` first runs a second pass (:mod:`dea_ros.identify.adaptive`): at the
-   end of its segments 0 V (state ``planning``, every tick 0 V) while a thread fits the bag recorded so
-   far and plans; the planned segments then run from the clock of the tick the plan is ready at (same
-   bag, metadata ``dea_ros.experiment.pass2``); the identification uses both passes.
+4. At the end: 0 V, bag closed, then in a background thread the offline identification writes
+   ``params.yaml``, ``report/`` and ``summary.json`` beside the bag. A protocol with ``adaptive: true``
+   first runs a second pass (:mod:`dea_ros.identify.adaptive`): 0 V (state ``planning``) while a thread
+   fits the bag so far and plans, then the planned segments from the tick the plan is ready at (same bag,
+   metadata ``dea_ros.experiment.pass2``); the identification uses both passes.
 
 Progress on ``~/status`` (std_msgs/String JSON, 2 Hz) and in the log. Every tick ends with a
-``~/tick_done`` (std_msgs/Header, stamp = the tick's time): in simulated time the mock rig waits
-for it before advancing (lockstep), so the commands reach the amplifier on time. With
-``command_trigger: applied_voltage`` (the demo) a tick is the amplifier's applied-voltage message
-of its update t_k, and the command is for its next update t_k + 1/``command_rate_hz``: with
-amplifier_node's ``~/command_received`` in the mock rig's ``lockstep_topics`` every command is
-applied exactly one update after it was computed (a clean zero-order hold, no jitter). With
-``command_batch`` K > 1 (applied_voltage only: the protocol is open loop) the commands of the next K
-updates go out as one ``voltage_cmd_batch`` (amplifier_node queues them and applies one per update,
-each through its limits, and acknowledges the batch once), so the lockstep waits on the
-identifier once per K ticks instead of every tick; the applied voltage is the same. ``~/abort``
-(std_srvs/Trigger) or Ctrl-C: 0 V commanded at once (the amplifier ramps down), the bag is
+``~/tick_done`` (std_msgs/Header, stamp = the tick's time): in simulated time the mock rig waits for it
+before advancing (lockstep). With ``command_trigger: applied_voltage`` (the demo) a tick is the amplifier's
+applied-voltage message of its update t_k and the command is for t_k + 1/``command_rate_hz``: with
+amplifier_node's ``~/command_received`` in the mock rig's ``lockstep_topics`` every command is applied
+exactly one update after it was computed. With ``command_batch`` K > 1 (open loop) the commands of the next
+K updates go out as one ``voltage_cmd_batch`` (amplifier_node applies one per update, each through its
+limits, and acknowledges the batch once; the mock rig then advances its clock over them at once); the
+applied voltage is the same. ``~/abort`` (std_srvs/Trigger) or Ctrl-C: 0 V commanded at once, the bag
 closed with everything recorded so far (metadata ``aborted: true``), no identification.
 
 A recording fault (any write error of the bag: disk full, I/O error, ...) stops the experiment: 0 V at
@@ -52,11 +48,10 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.time import Time
 from rclpy.qos import HistoryPolicy, QoSProfile
-from builtin_interfaces.msg import Duration
 from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64, Header, String
 from std_srvs.srv import Trigger
-from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+from trajectory_msgs.msg import JointTrajectory
 
 from ..bag import BagError, BagWriter, check_writable, recover_bag, resolve_rosbag2_format
 from ..bag.message_codec import header_stamp_ns
@@ -64,6 +59,7 @@ from ..identify.adaptive import plan_second_pass
 from ..identify.bag_experiments import experiment_record, pass_metadata_name
 from ..identify.from_bag import fit_bag, identify_bag
 from ..identify.protocols import ProtocolError, commands_ahead, load_protocol, segment_at
+from .command_batch_msg import batch_message
 from .common import (COMMAND_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_DISPLACEMENT, TOPIC_DISPLACEMENT_PREDICTED,
                      TOPIC_VOLTAGE, TOPIC_VOLTAGE_CMD, TOPIC_VOLTAGE_CMD_BATCH, declare_bool, declare_float,
                      declare_int, declare_str, qos_to_bag, with_pending)
@@ -75,8 +71,9 @@ __all__ = ["IdentifierNode", "main"]
 #: after which the node commands from its clock again (below amplifier_node's 2 s clock-stall backstop).
 TRIGGER_SILENCE_S = 1.0
 
-#: ``command_trigger: applied_voltage``: ticks of 0 V with the rig ready before the protocol starts (0.1 s at the
-#: demo's 250 Hz; ready_ticks_needed)
+#: ``command_trigger: applied_voltage``: ticks of 0 V with the rig ready before the protocol starts (0.1 s at
+#: 250 Hz; 1 with ``timer``). The mock rig's clock runs on its own until its lockstep engages on the first
+#: acknowledged command: a protocol started then sent its first batch for an update already passed (stale).
 READY_TICKS = 25
 
 RECORDED = (
@@ -390,23 +387,15 @@ class IdentifierNode(Node):
             self.last_trigger_wall_s = time.monotonic()
             self.on_tick()
 
-    def ready_ticks_needed(self) -> int:
-        """Ticks the rig must be seen ready (each commanded 0 V) before the protocol starts: with
-        ``command_trigger: applied_voltage`` :data:`READY_TICKS` (the mock rig's clock runs on its own until its
-        lockstep engages on the first acknowledgement of a command, i.e. on these ticks: a protocol started on
-        the first of them sent its first batch for an update the clock had already passed), else 1."""
-        return READY_TICKS if self.command_trigger == "applied_voltage" else 1
-
     def wait_for_rig(self, now_ns: int) -> None:
-        """A tick before the protocol: 0 V, acknowledged; the rig ready for ``ready_ticks_needed()`` ticks: the
-        protocol runs from the next tick."""
+        """A tick before the protocol: 0 V, acknowledged; the rig ready for a few ticks: the protocol next."""
         self.cmd_pub.publish(Float64(data=0.0))
         self.publish_ack(now_ns)
         if not self.rig_seen["amplifier_listening"]:
             self.rig_seen["amplifier_listening"] = self.amplifier_listening()
         if all(self.rig_seen.values()) and now_ns > self.last_ready_ns:   # a tick with the rig ready
             self.ready_ticks, self.last_ready_ns = self.ready_ticks + 1, now_ns
-        if self.ready_ticks >= self.ready_ticks_needed():
+        if self.ready_ticks >= (READY_TICKS if self.command_trigger == "applied_voltage" else 1):
             self.state, self.t0_ns = "running", None
             for sub in self.ready_subs:  # only needed to start: halve the callbacks
                 self.destroy_subscription(sub)
@@ -535,13 +524,8 @@ class IdentifierNode(Node):
         period_ns = int(round(1e9 * period))
         if self.batch_end_ns is not None and now_ns < self.batch_end_ns - period_ns // 2:
             return  # the amplifier still holds commands up to batch_end_ns
-        batch = JointTrajectory(joint_names=["dea_voltage"])
-        batch.header.stamp = Time(nanoseconds=now_ns + period_ns, clock_type=ClockType.ROS_TIME).to_msg()
-        for i, voltage in enumerate(commands_ahead(self.segments, k, t, period, self.command_batch)):
-            sec, nanosec = divmod(i * period_ns, 1_000_000_000)
-            batch.points.append(JointTrajectoryPoint(positions=[float(voltage)],
-                                                     time_from_start=Duration(sec=sec, nanosec=nanosec)))
-        self.batch_pub.publish(batch)
+        voltages = commands_ahead(self.segments, k, t, period, self.command_batch)
+        self.batch_pub.publish(batch_message(now_ns + period_ns, voltages, period_ns))
         self.batch_end_ns = now_ns + self.command_batch * period_ns
 
     def publish_ack(self, stamp_ns: int | None = None) -> None:
@@ -639,8 +623,7 @@ class IdentifierNode(Node):
 
     def write_summary(self) -> None:
         self.summary.update({"state": self.state, "error": self.error, "run_dir": str(self.run_dir),
-                             "protocol": self.protocol.name,
-                             "outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts})
+                             "protocol": self.protocol.name, **self.counters()})
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             (self.run_dir / "summary.json").write_text(json.dumps(self.summary, indent=2, default=str))
@@ -672,8 +655,10 @@ class IdentifierNode(Node):
         return {"state": self.state, "pass": self.pass_number, "segment": self.segment_index + 1,
                 "segments": len(self.segments), "elapsed_s": elapsed, "duration_s": total,
                 "progress": min(1.0, elapsed / total) if elapsed is not None and total else None,
-                "bag": str(self.bag_dir), "error": self.error,
-                "outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts}
+                "bag": str(self.bag_dir), "error": self.error, **self.counters()}
+
+    def counters(self) -> dict:
+        return {"outputs_behind_clock": self.outputs_behind_clock, "restarts": self.restarts}
 
     def publish_status(self) -> None:
         self.status_pub.publish(String(data=json.dumps(self.status())))
