@@ -53,7 +53,7 @@ from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solut
 from .static_fit import stress_combinations
 
 __all__ = ["DynamicObjective", "resolve_weights", "PAPER_WEIGHTS", "FREQUENCY_METHODS", "CURVATURE_UNIT_PA",
-           "MAX_FALLBACK_TRIALS", "FALLBACK_POLICIES"]
+           "FALLBACK_POLICIES"]
 
 LOG = logging.getLogger("dea_ros.identify")
 
@@ -62,17 +62,13 @@ PAPER_WEIGHTS = {"step": 6.6e6, "hbm": 0.1e6}
 FREQUENCY_METHODS = ("hbm", "integration")
 #: Unit of the curvature coordinate of the optimizer (sigma_h''(1) in MPa).
 CURVATURE_UNIT_PA = 1e6
-#: Trial points of a local fit (fallback policy "trial") whose evaluation may fall back to forward integration
-#: where harmonic balance fails, per objective. Each such evaluation integrates to the periodic state
-#: (1 + parameters) times per failing frequency: minutes on a slow-creep membrane (F04 of the coverage
-#: family: 1510 s for one identification; F13 seeds 2-3: > 20 min). Beyond these, a trial point where harmonic
-#: balance fails is rejected (non-finite residuals: least_squares' trust region shrinks back towards the last
-#: accepted point), as in the joint refinement. Starts, accepted points and the result always integrate.
-MAX_FALLBACK_TRIALS = 8
-
 #: Where forward integration replaces a failed harmonic balance (DynamicObjective.fallback): "integrate"
-#: (always; the default), "trial" (the first MAX_FALLBACK_TRIALS evaluations, then FallbackRefused), "never"
-#: (FallbackRefused: the initial guess's profile scan skips such a creep time).
+#: (always; the default: starts, accepted points, the result), "trial" (a trial point of a local fit: never,
+#: FallbackRefused -> non-finite residuals, least_squares' trust region shrinks back towards the last accepted
+#: point, as in the joint refinement), "never" (the initial guess's profile scan skips such a creep time).
+#: Each integration runs to the periodic state, (1 + parameters) times per failing frequency: minutes on a
+#: slow-creep or softening membrane (F04 of the coverage family: 1510 s for one identification; F13 seeds 2-3:
+#: > 20 min; with 8 integrating trials still allowed, F13 with 17 frequencies, seed 2: > 10 min).
 FALLBACK_POLICIES = ("integrate", "trial", "never")
 
 
@@ -172,7 +168,6 @@ class DynamicObjective:
         self.time_frequency_s = 0.0
         self.history: list[dict] = []
         self.fallbacks: list[str] = []
-        self.fallback_trials = 0     # trial evaluations that integrated where harmonic balance failed
         self.rejected_trials = 0     # trial points rejected instead (FallbackRefused)
         self.fallback_policy = "integrate"   # see FALLBACK_POLICIES; set with the fallback() context
 
@@ -246,7 +241,6 @@ class DynamicObjective:
         (the integration method then only adds the finite differences)."""
         sim = np.empty(len(self.points))
         rows = np.zeros((len(self.points), self.n_params))
-        counted = False
         for k, point in enumerate(self.points):
             p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
             d0, dd0 = self.rest(params, point.mass_kg)
@@ -260,8 +254,7 @@ class DynamicObjective:
                     continue
                 except HarmonicBalanceError as exc:
                     self._hb_guess.pop(k, None)
-                    self._fallback_allowed(point, exc, counted)
-                    counted = True
+                    self._fallback_allowed(point, exc)
                     msg = (f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
                            "used forward integration for that evaluation")
                     self.fallbacks.append(msg)
@@ -337,15 +330,11 @@ class DynamicObjective:
         finally:
             self.fallback_policy = previous
 
-    def _fallback_allowed(self, point: FrequencyPoint, exc: HarmonicBalanceError, counted: bool) -> None:
-        """Raise FallbackRefused unless the policy lets this evaluation integrate (``counted``: it already does)."""
-        policy = self.fallback_policy
-        if policy == "integrate" or counted:
-            return
-        if policy == "never" or self.fallback_trials >= MAX_FALLBACK_TRIALS:
+    def _fallback_allowed(self, point: FrequencyPoint, exc: HarmonicBalanceError) -> None:
+        """Raise FallbackRefused unless the policy lets this evaluation integrate."""
+        if self.fallback_policy != "integrate":
             raise FallbackRefused(f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
-                                  f"not integrated (fallback policy {policy!r})") from exc
-        self.fallback_trials += 1
+                                  f"not integrated (fallback policy {self.fallback_policy!r})") from exc
 
     def trial_residuals(self, theta) -> np.ndarray:
         """:meth:`residuals` at a trial point of an optimiser (not its start: evaluate that with
