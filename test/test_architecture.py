@@ -33,10 +33,8 @@ def package_modules():
             continue
         try:
             found.append(importlib.import_module(info.name))
-        except ImportError as exc:  # rclpy, uldaq, ... not installed here
-            optional = ("rclpy", "std_msgs", "sensor_msgs", "uldaq", "serial", "trajectory_msgs", "diagnostic_msgs",
-                        "rosidl")
-            if not any(name in str(exc) for name in optional):
+        except ImportError as exc:  # rclpy, the ROS messages, uldaq, ... not installed here
+            if not any(name in str(exc) for name in ROS_MODULES | {"uldaq", "serial", "rosidl"}):
                 raise
     return found
 
