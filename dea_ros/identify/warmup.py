@@ -9,9 +9,15 @@ A marker file in the cache directory records a completed warm-up for this instal
 the kernel files' stamps, :func:`~dea_ros.solvers.jit.cache_stamp`: numba compiles anew for another
 clone or install even in the same cache directory): :func:`kernels_cached` is then True and the demo
 skips it.
+
+``scripts/setup_env.sh`` starts the same warm-up in the background as soon as the package is installed
+(while pip installs the ROS 2 wheels and the test tools), and ``scripts/run_tests.sh`` waits for it. Two
+warm-ups of one installation never compile side by side: :func:`compile_kernels` holds a lock file in the
+cache directory, and a second one waits for the first and then finds the marker (it returns at once).
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from pathlib import Path
 
@@ -20,7 +26,12 @@ from ..solvers.jit import CACHE_DIR, cache_stamp
 from .pipeline import identify
 from .synth import synthesize_experiments
 
-__all__ = ["compile_kernels", "kernels_cached", "marker_path", "MARKER"]
+try:
+    import fcntl
+except ImportError:  # not POSIX: no lock; a second warm-up compiles beside the first (same results)
+    fcntl = None
+
+__all__ = ["compile_kernels", "kernels_cached", "marker_path", "lock_path", "MARKER"]
 
 #: Written into the kernel cache directory once a warm-up completed.
 MARKER = ".dea_ros_identify_warm"
@@ -31,6 +42,29 @@ def marker_path(cache_dir: str | Path = CACHE_DIR) -> Path:
     return Path(cache_dir) / f"{MARKER}_{cache_stamp()}"
 
 
+def lock_path(cache_dir: str | Path = CACHE_DIR) -> Path:
+    """The lock file a warm-up of this installation's kernels holds while it compiles (``cache_dir``)."""
+    return Path(cache_dir) / f"{MARKER}_{cache_stamp()}.lock"
+
+
+@contextlib.contextmanager
+def _warmup_lock(cache_dir: str | Path):
+    """Hold the warm-up lock of this installation (waiting for another process's warm-up to end); without a
+    writable cache directory or on a system without ``fcntl``, no lock."""
+    try:
+        Path(cache_dir).mkdir(parents=True, exist_ok=True)
+        handle = open(lock_path(cache_dir), "a")
+    except OSError:
+        handle = None
+    try:
+        if handle is not None and fcntl is not None:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        yield
+    finally:
+        if handle is not None:
+            handle.close()  # releases the lock
+
+
 def kernels_cached(cache_dir: str | Path = CACHE_DIR) -> bool:
     """True when a warm-up completed for this cache directory (this numba, these kernel sources) and this
     installation (its path, the kernel files' stamps: :func:`~dea_ros.solvers.jit.cache_stamp`)."""
@@ -39,7 +73,15 @@ def kernels_cached(cache_dir: str | Path = CACHE_DIR) -> bool:
 
 def compile_kernels(cache_dir: str | Path = CACHE_DIR) -> float:
     """Run a small identification (static points, one step, three sines, noise 1 um) so that numba compiles
-    and caches every kernel the identification uses; writes the marker. Returns the wall time, s."""
+    and caches every kernel the identification uses; writes the marker. Returns the wall time, s, of the
+    compilation (0.0 when the kernels were cached, by another warm-up this one waited for or before)."""
+    with _warmup_lock(cache_dir):
+        if kernels_cached(cache_dir):
+            return 0.0
+        return _compile_and_mark(cache_dir)
+
+
+def _compile_and_mark(cache_dir: str | Path) -> float:
     t0 = time.perf_counter()
     truth = preset("A2")
     experiments = synthesize_experiments(truth, 1e-6, seed=1, static_samples=20, step_duration_s=1.0,
@@ -56,4 +98,7 @@ def compile_kernels(cache_dir: str | Path = CACHE_DIR) -> float:
 
 
 if __name__ == "__main__":
-    print(f"identification kernels ready in {compile_kernels():.1f} s (cache {CACHE_DIR})")
+    _t0 = time.perf_counter()
+    _compiled_s = compile_kernels()
+    _how = f"compiled in {_compiled_s:.1f} s" if _compiled_s else "already compiled"
+    print(f"identification kernels ready ({_how}, waited {time.perf_counter() - _t0:.1f} s; cache {CACHE_DIR})")

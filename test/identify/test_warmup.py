@@ -49,3 +49,34 @@ def test_another_clone_or_a_touched_kernel_file_is_another_stamp(tmp_path):
     stat = kernel_file.stat()
     os.utime(kernel_file, ns=(stat.st_atime_ns, stat.st_mtime_ns + 5_000_000_000))
     assert _stamp(clones[0]) != a                        # touched: numba recompiles it
+
+
+def test_two_warmups_of_one_installation_compile_once(tmp_path, monkeypatch):
+    """scripts/setup_env.sh starts a warm-up in the background and the demo (or the test command) starts
+    another: the second waits for the first's lock and then finds its marker instead of compiling beside it
+    (two compilations of the same kernels on two cores would each take twice as long)."""
+    import threading
+    import time
+
+    from dea_ros.identify import warmup
+
+    calls = []
+
+    def slow_compile(cache_dir):
+        calls.append(threading.current_thread().name)
+        time.sleep(0.5)                                   # the first holds the lock while "compiling"
+        marker_path(cache_dir).write_text("warm-up completed in 0.5 s\n")
+        return 0.5
+
+    monkeypatch.setattr(warmup, "_compile_and_mark", slow_compile)
+    results = {}
+    threads = [threading.Thread(target=lambda n=n: results.__setitem__(n, warmup.compile_kernels(tmp_path)),
+                                name=f"warmup-{n}") for n in range(2)]
+    for t in threads:
+        t.start()
+        time.sleep(0.05)
+    for t in threads:
+        t.join(timeout=10)
+    assert len(calls) == 1                               # one compilation
+    assert sorted(results.values()) == [0.0, 0.5]        # the other waited and found the kernels cached
+    assert kernels_cached(tmp_path) and warmup.lock_path(tmp_path).is_file()
