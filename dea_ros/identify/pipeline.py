@@ -58,7 +58,10 @@ class IdentificationOptions:
     w_step = 6.6e6, w_hbm = 0.1e6), "noise" (1/sigma^2) or a dict; ``fit_frequencies_Hz`` (default
     the paper's four in the data, "all", or a list); records classified as not periodic at T/2 are
     left out of it. ``stress_terms``: stress combinations of the static fit (2: sigma_h(1) and
-    sigma_h'(1); 1 when there are too few static points). ``refine``: "joint" (default) refines
+    sigma_h'(1); 1 when there are too few static points). ``joint_slope``: sigma_h'(1) in the joint
+    refinement -- None: fitted there when the static fit fits it (``stress_terms`` >= 2); True: fitted
+    there even when the static fit holds it (one mass on the rig: the step and the sines determine it,
+    the staircase alone does not). ``refine``: "joint" (default) refines
     every identifiable parameter jointly with statistical weights on all classified records (the
     final parameters and intervals); "none" stops after the paper's two stages.
     ``fit_curvature``: identify sigma_h''(1) -- "auto" in the joint refinement when there are sine
@@ -76,6 +79,7 @@ class IdentificationOptions:
     n_harmonics: int = 8
     weights: Any = "paper"
     stress_terms: int = 2
+    joint_slope: bool | None = None
     evaluate_fit: bool = True
     fit_curvature: Any = "auto"
     refine: str = "joint"
@@ -247,7 +251,7 @@ def _refinement_stage(run: _Run) -> None:
     if opt.refine == "joint" and static is not None and static.method == "lsq":
         t0 = time.perf_counter()
         rounds = refine_jointly(run.params, static, run.classification, exp, opt.n_harmonics, opt.fit_curvature,
-                                run.stress_terms, run.progress)
+                                run.stress_terms, run.progress, fit_slope=opt.joint_slope)
         run.timings["classification"] += rounds.classification_s
         run.warnings += rounds.warnings
         run.params, run.classification, run.joint = rounds.parameters, rounds.classification, rounds.joint

@@ -87,20 +87,23 @@ def curvature_fallback(static: StaticFitResult | None, params: MembraneParameter
 
 
 def _joint_fit(start: MembraneParameters, static: StaticFitResult, experiments: ExperimentSet, points: list,
-               fit_curvature, stress_terms: int, fallback_Pa: float, n_harmonics: int, progress) -> JointFitResult:
+               fit_curvature, stress_terms: int, fallback_Pa: float, n_harmonics: int, progress,
+               fit_slope: bool) -> JointFitResult:
     """:func:`fit_joint` on all the data with the static fit's weight and prior."""
     return fit_joint(start, experiments.all_static(), experiments.steps, points, static_sigma(static),
                      noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
-                     fit_curvature=fit_curvature, fit_slope=stress_terms >= 2, curvature_fallback_Pa=fallback_Pa,
+                     fit_curvature=fit_curvature, fit_slope=fit_slope, curvature_fallback_Pa=fallback_Pa,
                      n_harmonics=n_harmonics, progress=progress, curvature_from_static=stress_terms >= 3)
 
 
 def refine_jointly(params: MembraneParameters, static: StaticFitResult, classification: list,
                    experiments: ExperimentSet, n_harmonics: int, fit_curvature, stress_terms: int,
-                   progress=None) -> JointRounds:
+                   progress=None, fit_slope: bool | None = None) -> JointRounds:
     """The joint refinement from ``params`` (the two-stage result), repeated with the records classified
     again until the classification does not change (module docstring). ``fit_curvature``: False never
-    fits sigma_h''(1); otherwise it is fitted when there are sine records.
+    fits sigma_h''(1); otherwise it is fitted when there are sine records. ``fit_slope``: sigma_h'(1)
+    fitted (True) or held at the start's value (False); None: fitted when the static fit fitted it
+    (``stress_terms`` >= 2).
 
     With sine records the first round holds the curvature terms at the start's values and the records
     are classified again at its optimum before the curvature is freed: started from the two-stage result,
@@ -109,6 +112,7 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
     the coverage family, 17 frequencies, seed 3: chi-square 5272 with 1845 on 13 static points, k1 and
     sigma_h(1) 30 standard errors off; held first: 2380, every |z| < 0.4)."""
     fallback = curvature_fallback(static, params)
+    slope = stress_terms >= 2 if fit_slope is None else bool(fit_slope)
     fit_c = (fit_curvature is not False) and (bool(experiments.sines) or stress_terms >= 3)
     held_first = fit_c and bool(experiments.sines)
     rounds = JointRounds(None, params, classification, fallback)
@@ -118,7 +122,8 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
         pts = fitted_points(rounds.classification, experiments)
         try:
             rounds.joint = _joint_fit(rounds.parameters, static, experiments, pts, curvature, stress_terms,
-                                      float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics, progress)
+                                      float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics, progress,
+                                      slope)
         except JointFitError as exc:
             rounds.warnings.append(f"joint refinement failed ({exc}); the two-stage result is reported")
             rounds.joint = None

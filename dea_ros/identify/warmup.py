@@ -87,7 +87,7 @@ def _compile_and_mark(cache_dir: str | Path) -> float:
     experiments = synthesize_experiments(truth, 1e-6, seed=1, static_samples=20, step_duration_s=1.0,
                                          sample_rate_Hz=500.0, sine_frequencies_Hz=(5.0, 9.0, 12.0),
                                          series_frequencies_Hz=(9.0,), sine_record_s=1.0, baseline_samples=200)
-    identify(experiments, stress_terms=1)
+    identify(experiments, stress_terms=1, joint_slope=True)
     elapsed = time.perf_counter() - t0
     try:
         Path(cache_dir).mkdir(parents=True, exist_ok=True)
