@@ -201,13 +201,15 @@ def resolve_true_params(value: str, membrane: str) -> str:
 def _start_kernel_warmup(quiet: bool, log_file: Path):
     """First run (no completed warm-up in the kernel cache): compile the identification's kernels in a
     background process at low priority while the protocol runs; None when they are cached."""
-    from ..identify.warmup import kernels_cached
+    from ..identify.warmup import kernels_cached, warmup_running
 
     if kernels_cached():
         return None
     if not quiet:
-        print("dea-ros rig demo: first run with these kernels: compiling the identification's kernels in the "
-              "background while the protocol runs (cached for later runs)", flush=True)
+        what = ("the set-up's compilation of the identification's kernels goes on in the background"
+                if warmup_running() else "compiling the identification's kernels in the background")
+        print(f"dea-ros rig demo: first run with these kernels: {what} while the protocol runs (cached for "
+              "later runs)", flush=True)
     with open(log_file, "w") as log:
         return subprocess.Popen([sys.executable, "-m", "dea_ros.identify.warmup"], stdout=log,
                                 stderr=subprocess.STDOUT, preexec_fn=lambda: os.nice(10))

@@ -169,11 +169,10 @@ def _linearisation(params: MembraneParameters, voltage_V: float, mass_kg: float)
 
 
 def _profile_at_tau(objective: DynamicObjective, theta0: np.ndarray, log_tau: float, max_nfev: int,
-                    policy: str = "trial"):
+                    integrate_start: bool = True):
     """(cost, theta): eq. 22 minimised over ln k1 and ln eta2 with the creep time eta1/k1 held at
-    exp(``log_tau``) (the profile of the cost over the creep time), from ``theta0``. ``policy``: the fallback
-    of the trial points (FALLBACK_POLICIES); the start integrates where harmonic balance fails unless it is
-    "never" (then FallbackRefused)."""
+    exp(``log_tau``) (the profile of the cost over the creep time), from ``theta0``. Where harmonic balance
+    fails, the start integrates if ``integrate_start`` (else FallbackRefused); trial points never do (rejected)."""
     lo, hi = _bounds(objective.n_params)
     rest = np.asarray(theta0[3:], float)
 
@@ -187,22 +186,22 @@ def _profile_at_tau(objective: DynamicObjective, theta0: np.ndarray, log_tau: fl
     x_lo = np.array([max(lo[0], lo[1] - log_tau), lo[2]]) + 1e-6
     x_hi = np.array([min(hi[0], hi[1] - log_tau), hi[2]]) - 1e-6
     x0 = np.clip([theta0[0], theta0[2]], x_lo, x_hi)
-    with objective.fallback("never" if policy == "never" else "integrate"):
+    with objective.integration_fallback(integrate_start):
         objective.residuals(full(x0))   # the start (cached)
-    with objective.fallback(policy):
+    with objective.integration_fallback(False):
         sol = least_squares(lambda x: objective.trial_residuals(full(x)), x0, jac=jac, bounds=(x_lo, x_hi),
                             method="trf", x_scale=1.0, ftol=1e-6, xtol=1e-6, max_nfev=max_nfev)
     return float(sol.fun @ sol.fun), full(sol.x)
 
 
-def _profile_scan(objective: DynamicObjective, starts: list, profile_evaluations: int, policy: str
+def _profile_scan(objective: DynamicObjective, starts: list, profile_evaluations: int, integrate_starts: bool
                   ) -> tuple[list, list]:
-    """The profile at each (tau, theta) of ``starts`` with the fallback ``policy``: the (cost, tau, theta) found,
-    and the taus skipped because harmonic balance failed at their start and the policy refused integration."""
+    """The profile at each (tau, theta) of ``starts``: the (cost, tau, theta) found, and the taus skipped
+    because harmonic balance failed at their start and ``integrate_starts`` is False."""
     candidates, skipped = [], []
     for tau, theta in starts:
         try:
-            cost, theta = _profile_at_tau(objective, theta, math.log(tau), profile_evaluations, policy)
+            cost, theta = _profile_at_tau(objective, theta, math.log(tau), profile_evaluations, integrate_starts)
         except FallbackRefused as exc:
             LOG.debug("initial guess: tau %.3g s skipped (%s)", tau, exc)
             skipped.append(tau)
@@ -268,10 +267,10 @@ def initial_guess(objective: DynamicObjective, taus_s=None, profile_evaluations:
             *np.exp(np.clip(np.log([k1, k1 * tau, eta2]), lo + 1e-6, hi - 1e-6)))))
     # The scan without forward integration: a creep time at whose start harmonic balance fails is skipped
     # (integrating there cost minutes per start on slow-creep membranes); only if every one is, with it.
-    candidates, skipped = _profile_scan(objective, starts, profile_evaluations, "never")
+    candidates, skipped = _profile_scan(objective, starts, profile_evaluations, False)
     if not candidates and skipped:
         candidates, _ = _profile_scan(objective, [s for s in starts if s[0] in skipped], profile_evaluations,
-                                      "trial")
+                                      True)
     elif skipped:
         info["scan_skipped_tau_s"] = skipped
     if not candidates:
@@ -313,6 +312,8 @@ class DynamicFitResult:
     starts: list = field(default_factory=list)
     curvature_fitted: bool = False
     weights: tuple = ("paper", dict(PAPER_WEIGHTS))
+    #: trial points of the scan and the local fits rejected where harmonic balance failed (not integrated)
+    rejected_trials: int = 0
 
     @property
     def fit_frequencies_Hz(self) -> np.ndarray:
@@ -412,7 +413,7 @@ def _optimise(objective: DynamicObjective, x0, method: str, lo, hi, max_evaluati
     exact Jacobian ("lsq") or the paper's Nelder-Mead on normalised k1, eta1, eta2 ("paper")."""
     if method == "lsq":
         objective.residuals(x0)   # the start (cached): integrated where harmonic balance fails, never rejected
-        with objective.fallback("trial"):
+        with objective.integration_fallback(False):
             sol = least_squares(objective.trial_residuals, x0, jac=objective.jacobian, bounds=(lo, hi),
                                 method="trf", x_scale=1.0, ftol=1e-9, xtol=1e-9, gtol=1e-10,
                                 max_nfev=max_evaluations)
@@ -462,4 +463,5 @@ def _dynamic_result(objective: DynamicObjective, theta, method: str, lo, hi, ok:
         time_step_s=objective.time_step_s, time_frequency_s=objective.time_frequency_s,
         history=objective.history, warnings=warnings,
         curvature_fitted=objective.n_params == 4, weights=objective.weights,
+        rejected_trials=objective.rejected_trials,
     )

@@ -53,7 +53,7 @@ from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solut
 from .static_fit import stress_combinations
 
 __all__ = ["DynamicObjective", "resolve_weights", "PAPER_WEIGHTS", "FREQUENCY_METHODS", "CURVATURE_UNIT_PA",
-           "FALLBACK_POLICIES"]
+           ]
 
 LOG = logging.getLogger("dea_ros.identify")
 
@@ -62,14 +62,14 @@ PAPER_WEIGHTS = {"step": 6.6e6, "hbm": 0.1e6}
 FREQUENCY_METHODS = ("hbm", "integration")
 #: Unit of the curvature coordinate of the optimizer (sigma_h''(1) in MPa).
 CURVATURE_UNIT_PA = 1e6
-#: Where forward integration replaces a failed harmonic balance (DynamicObjective.fallback): "integrate"
-#: (always; the default: starts, accepted points, the result), "trial" (a trial point of a local fit: never,
-#: FallbackRefused -> non-finite residuals, least_squares' trust region shrinks back towards the last accepted
-#: point, as in the joint refinement), "never" (the initial guess's profile scan skips such a creep time).
-#: Each integration runs to the periodic state, (1 + parameters) times per failing frequency: minutes on a
-#: slow-creep or softening membrane (F04 of the coverage family: 1510 s for one identification; F13 seeds 2-3:
-#: > 20 min; with 8 integrating trials still allowed, F13 with 17 frequencies, seed 2: > 10 min).
-FALLBACK_POLICIES = ("integrate", "trial", "never")
+# Where forward integration replaces a failed harmonic balance (DynamicObjective.integration_fallback):
+# allowed at starts, accepted points and the result (the default); refused at a trial point of a local fit
+# (FallbackRefused -> non-finite residuals, least_squares' trust region shrinks back towards the last accepted
+# point, as in the joint refinement) and at the start of a creep time of the initial guess's profile scan (that
+# creep time is skipped). Each integration runs to the periodic state, (1 + parameters) times per failing
+# frequency: minutes on a slow-creep or softening membrane (F04 of the coverage family: 1510 s for one
+# identification; F13 seeds 2-3: > 20 min; with 8 integrating trials still allowed, F13 with 17 frequencies,
+# seed 2: > 10 min).
 
 
 def resolve_weights(weights, steps: Sequence[StepData], points: Sequence[FrequencyPoint],
@@ -169,7 +169,7 @@ class DynamicObjective:
         self.history: list[dict] = []
         self.fallbacks: list[str] = []
         self.rejected_trials = 0     # trial points rejected instead (FallbackRefused)
-        self.fallback_policy = "integrate"   # see FALLBACK_POLICIES; set with the fallback() context
+        self.integrate_failures = True       # set with the integration_fallback() context
 
     # -------------------------------------------------------------- parameters
     def parameters(self, theta) -> MembraneParameters:
@@ -320,26 +320,25 @@ class DynamicObjective:
         return self.evaluate(theta, jacobian=self.frequency_method == "hbm")[0]
 
     @contextlib.contextmanager
-    def fallback(self, policy: str):
-        """Within the block, where forward integration replaces a failed harmonic balance (FALLBACK_POLICIES)."""
-        if policy not in FALLBACK_POLICIES:
-            raise ValueError(f"fallback policy: one of {FALLBACK_POLICIES}, got {policy!r}")
-        previous, self.fallback_policy = self.fallback_policy, policy
+    def integration_fallback(self, allowed: bool):
+        """Within the block, forward integration replaces a failed harmonic balance (``allowed``) or the
+        evaluation raises FallbackRefused (module comment above ``resolve_weights``)."""
+        previous, self.integrate_failures = self.integrate_failures, bool(allowed)
         try:
             yield self
         finally:
-            self.fallback_policy = previous
+            self.integrate_failures = previous
 
     def _fallback_allowed(self, point: FrequencyPoint, exc: HarmonicBalanceError) -> None:
-        """Raise FallbackRefused unless the policy lets this evaluation integrate."""
-        if self.fallback_policy != "integrate":
+        """Raise FallbackRefused unless this evaluation may integrate."""
+        if not self.integrate_failures:
             raise FallbackRefused(f"harmonic balance failed at {point.frequency_Hz:g} Hz ({exc}); "
-                                  f"not integrated (fallback policy {self.fallback_policy!r})") from exc
+                                  "not integrated (a trial point, or a start the scan skips)") from exc
 
     def trial_residuals(self, theta) -> np.ndarray:
         """:meth:`residuals` at a trial point of an optimiser (not its start: evaluate that with
-        :meth:`residuals` first): where the fallback policy refuses forward integration, non-finite residuals
-        (least_squares rejects the point and shrinks its trust region)."""
+        :meth:`residuals` first): where harmonic balance fails (integration refused), non-finite residuals
+        (least_squares rejects the point and shrinks its trust region), counted in ``rejected_trials``."""
         try:
             return self.residuals(theta)
         except FallbackRefused as exc:
@@ -349,11 +348,11 @@ class DynamicObjective:
 
     def jacobian(self, theta) -> np.ndarray:
         """At an accepted point (cached from its evaluation; forward integration where harmonic balance fails
-        whatever the policy, should the cache have dropped it)."""
+        even inside integration_fallback(False), should the cache have dropped it)."""
         try:
             return self.evaluate(theta, jacobian=True)[1]
         except FallbackRefused:
-            with self.fallback("integrate"):
+            with self.integration_fallback(True):
                 return self.evaluate(theta, jacobian=True)[1]
 
     def cost(self, theta) -> float:

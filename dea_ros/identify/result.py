@@ -187,6 +187,7 @@ class IdentificationResult:
                 "frequency_cost": dy.frequency_cost,
                 "evaluations": dy.n_evaluations,
                 "jacobians": dy.n_jacobians,
+                "rejected_trials": dy.rejected_trials,
                 "statistics": dy.statistics.as_dict() if dy.statistics else None,
                 "initial_guess": jsonable({k: v for k, v in dy.initial.items()}),
             }

@@ -31,7 +31,7 @@ try:
 except ImportError:  # not POSIX: no lock; a second warm-up compiles beside the first (same results)
     fcntl = None
 
-__all__ = ["compile_kernels", "kernels_cached", "marker_path", "lock_path", "MARKER"]
+__all__ = ["compile_kernels", "kernels_cached", "warmup_running", "marker_path", "lock_path", "MARKER"]
 
 #: Written into the kernel cache directory once a warm-up completed.
 MARKER = ".dea_ros_identify_warm"
@@ -63,6 +63,21 @@ def _warmup_lock(cache_dir: str | Path):
     finally:
         if handle is not None:
             handle.close()  # releases the lock
+
+
+def warmup_running(cache_dir: str | Path = CACHE_DIR) -> bool:
+    """True while another process's warm-up of this installation holds its lock (set-up's, in the
+    background); False without a lock file or without ``fcntl``."""
+    if fcntl is None or not lock_path(cache_dir).is_file():
+        return False
+    try:
+        with open(lock_path(cache_dir), "a") as handle:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 def kernels_cached(cache_dir: str | Path = CACHE_DIR) -> bool:

@@ -73,3 +73,17 @@ def test_when_every_start_fails_the_scan_integrates(synthetic, monkeypatch):
     starts, info = initial_guess(objective)
     assert starts and "scan_skipped_tau_s" not in info and calls["integrations"] > 0
     assert np.all(np.isfinite(starts[0]))
+
+
+def test_a_trial_point_where_harmonic_balance_fails_is_rejected_and_counted(synthetic, monkeypatch):
+    _folder, exp = synthetic("A2")
+    truth = preset("A2")
+    points = select_fit_frequencies(exp.sines)
+    calls = _failing_above(monkeypatch, 0.0, points[-1].frequency_Hz)    # everywhere
+    objective = DynamicObjective(truth, exp.steps, points)
+    theta = np.log([truth.k1_Pa, truth.eta1_Pa_s, truth.eta2_Pa_s])
+    with objective.integration_fallback(False):
+        residuals = objective.trial_residuals(theta)
+    assert not np.any(np.isfinite(residuals)) and calls["integrations"] == 0
+    assert objective.rejected_trials == 1 and objective.integrate_failures      # restored after the block
+    assert np.all(np.isfinite(objective.residuals(theta))) and calls["integrations"] > 0   # a start integrates

@@ -80,3 +80,16 @@ def test_two_warmups_of_one_installation_compile_once(tmp_path, monkeypatch):
     assert len(calls) == 1                               # one compilation
     assert sorted(results.values()) == [0.0, 0.5]        # the other waited and found the kernels cached
     assert kernels_cached(tmp_path) and warmup.lock_path(tmp_path).is_file()
+
+
+def test_a_running_warmup_is_seen_by_its_lock(tmp_path):
+    """The demo says whether the set-up's warm-up is still compiling (its lock held) or it starts one."""
+    import fcntl
+
+    from dea_ros.identify.warmup import lock_path, warmup_running
+
+    assert not warmup_running(tmp_path)                  # no lock file yet
+    with open(lock_path(tmp_path), "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)                 # another warm-up compiling
+        assert warmup_running(tmp_path)
+    assert not warmup_running(tmp_path)                  # released (its process ended)

@@ -416,7 +416,9 @@ def _dynamic_fit_lines(dy, jt) -> list:
                f"fit frequencies {pts or 'none'} Hz; "
                f"cost J (eq. 22) = {_fmt(dy.cost)} (step {_fmt(dy.step_cost)}, "
                f"frequency {_fmt(dy.frequency_cost)}); "
-               f"{dy.n_evaluations} evaluations ({dy.n_jacobians} with Jacobian).")
+               f"{dy.n_evaluations} evaluations ({dy.n_jacobians} with Jacobian"
+               + (f"; {dy.rejected_trials} trial points rejected where harmonic balance failed, not integrated"
+                  if dy.rejected_trials else "") + ").")
     init = dy.initial
     out.append("")
     out.append(f"Initial guess from the {init.get('source')}: oscillation {_fmt(init.get('oscillation_Hz'))} Hz, "
