@@ -15,12 +15,12 @@ from dea_ros.blas_threads import use_one_blas_thread
 # thread counts' roundings (4e-8 apart on the CI machine of stop 28).
 use_one_blas_thread()
 
-# Under pytest -n (scripts/run_tests.sh runs the suite on three processes) each worker process uses its
+# Under pytest -n (scripts/run_tests.sh runs the suite on two processes) each worker process uses its
 # own ROS domain: the caller's ROS_DOMAIN_ID (or one per run) plus the worker's index, so two node
 # tests running at once never see each other's topics. The nodes they start inherit it.
 _XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER", "")
 if _XDIST_WORKER.startswith("gw"):
-    _base_domain = int(os.environ.get("ROS_DOMAIN_ID") or 100 + os.getppid() % 40 * 3)
+    _base_domain = int(os.environ.get("ROS_DOMAIN_ID") or 100 + os.getppid() % 40 * 3)  # room for 3 workers
     os.environ["ROS_DOMAIN_ID"] = str((_base_domain + int(_XDIST_WORKER[2:])) % 233)
 
 import pytest  # noqa: E402
@@ -55,7 +55,7 @@ NUMERIC_HEAVY_TESTS = (
 
 #: Tests that run a rig or nodes on the ROS graph in their own processes against wall-clock limits: under
 #: pytest -n (scripts/run_tests.sh, ``--dist loadgroup``) they all run in one worker, one at a time, as in a
-#: one-process run; the other workers take the rest of the suite meanwhile (the end-to-end demo among it:
+#: one-process run; the other worker takes the rest of the suite meanwhile (the end-to-end demo among it:
 #: its lockstep rig slows down under load instead of failing, as the demo does beside other work).
 RIG_PATHS = ("nodes/", "test_package.py", "test_rig_check.py")
 

@@ -81,8 +81,12 @@ def _peak(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: in
 
 
 def _steps(params: MembraneParameters, experiments: ExperimentSet) -> list:
-    return [TransientCollocation(st.time_s, st.voltage_V, hold=st.voltage_hold)
-            .solve(params.replace(mass_kg=st.mass_kg)).displacement_m for st in experiments.steps]
+    out = []
+    for st in experiments.steps:
+        p = params.replace(mass_kg=st.mass_kg)
+        out.append(TransientCollocation.for_record(p, st.time_s, st.voltage_V, hold=st.voltage_hold)
+                   .solve(p).displacement_m)
+    return out
 
 
 def _ends(statistics, written: float) -> tuple:

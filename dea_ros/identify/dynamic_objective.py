@@ -151,7 +151,8 @@ class DynamicObjective:
         self.n_harmonics = int(n_harmonics)
         self.progress = progress
         self.integration_options = dict(integration_options or {})
-        self.solvers = [TransientCollocation(s.time_s, s.voltage_V, hold=s.voltage_hold) for s in self.steps]
+        self.solvers = [TransientCollocation.for_record(static_params.replace(mass_kg=s.mass_kg), s.time_s, s.voltage_V,
+                                                        hold=s.voltage_hold) for s in self.steps]
         # Optional 4th parameter: sigma_h''(1) moved along a (beta, gamma) direction (in MPa).
         self.direction = None
         self.base_beta_gamma = np.r_[static_params.beta_Pa, static_params.gamma_Pa]

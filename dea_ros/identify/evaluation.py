@@ -167,7 +167,7 @@ def _compare_step(params: MembraneParameters, step: StepData, noise: float | Non
     if step.voltage_hold == "zoh" and jumps > 50:
         # A measured (noisy) voltage: every sample is a breakpoint of the adaptive integrator;
         # use the collocation solver (validated to ~1 nm against it) instead.
-        sim_d = TransientCollocation(step.time_s, step.voltage_V, hold="zoh").solve(p).displacement_m
+        sim_d = TransientCollocation.for_record(p, step.time_s, step.voltage_V, hold="zoh").solve(p).displacement_m
     else:
         sim_d = simulate(p, SampledVoltage(step.time_s, step.voltage_V, hold=step.voltage_hold),
                          float(step.time_s[-1]), t_eval=step.time_s, t_start_s=float(step.time_s[0]),

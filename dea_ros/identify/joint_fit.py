@@ -148,7 +148,8 @@ class JointObjective:
         self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
         gain = self.rep.gain                                         # (6, 4)
         self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
-        self.solvers = [TransientCollocation(s.time_s, s.voltage_V, hold=s.voltage_hold) for s in self.steps]
+        self.solvers = [TransientCollocation.for_record(start.replace(mass_kg=s.mass_kg), s.time_s, s.voltage_V,
+                                                        hold=s.voltage_hold) for s in self.steps]
         self._guesses: dict = {}
         self._cache: dict = {}
         self.n_evaluations = 0

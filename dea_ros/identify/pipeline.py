@@ -292,8 +292,11 @@ def _transient_solver_difference_um(run: _Run, evaluation: Evaluation) -> float 
     if run.dynamic is not None and run.joint is None:
         fast = run.dynamic.step_simulated_m
     else:
-        fast = [TransientCollocation(st.time_s, st.voltage_V, hold=st.voltage_hold)
-                .solve(run.params.replace(mass_kg=st.mass_kg)).displacement_m for st in run.experiments.steps]
+        fast = []
+        for st in run.experiments.steps:
+            p = run.params.replace(mass_kg=st.mass_kg)
+            fast.append(TransientCollocation.for_record(p, st.time_s, st.voltage_V, hold=st.voltage_hold)
+                        .solve(p).displacement_m)
     return max(float(np.max(np.abs(f - c.simulated_m))) * 1e6 for f, c in zip(fast, evaluation.steps))
 
 

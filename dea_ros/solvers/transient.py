@@ -46,6 +46,7 @@ Accuracy (``test/identify/test_transient.py``, ``bench/bench_identify.py``): for
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -61,6 +62,8 @@ from ..errors import TransientError
 __all__ = [
     "TransientSolution",
     "TransientCollocation",
+    "record_substeps",
+    "MAX_OMEGA_H",
     "TransientError",
     "simulate_collocation",
     "DYNAMIC_PARAMETERS",
@@ -208,6 +211,35 @@ def _static_key(params: MembraneParameters) -> tuple:
     )
 
 
+#: The largest omega h of a collocation interval (omega: the fastest linearised mode of the membrane over the
+#: record, h: the interval). A record sampled at a tenth of the oscillation's period is far from converged with
+#: one interval per sample: the mock membrane's step (its linear oscillation at 19 Hz, omega = 120 rad/s) sampled
+#: at 250 Hz (omega h = 0.48) was 0.19 um RMS from converged integration, which biased eta1 by +2 % (2.5 standard
+#: errors, 1 um noise) in identification from 250 Hz records (issue 21, session 17); at omega h = 0.24 (two
+#: intervals per sample, or 500 Hz) 0.012 um RMS, at 0.12 0.0007 um (Hermite-Simpson's error ~ (omega h)^4).
+MAX_OMEGA_H = 0.25
+#: At most this many collocation intervals per sample interval.
+MAX_SUBSTEPS = 8
+
+
+def record_substeps(params: MembraneParameters, time_s, voltage_V, max_omega_h: float = MAX_OMEGA_H) -> int:
+    """Substeps per sample interval for :class:`TransientCollocation` on the record (``time_s``, ``voltage_V``)
+    of the membrane ``params``: the fewest that keep omega h within ``max_omega_h`` (:data:`MAX_OMEGA_H`) for
+    the fastest linearised mode (at the equilibria of the record's first and largest voltage), at most
+    :data:`MAX_SUBSTEPS`."""
+    t = np.asarray(time_s, dtype=float).reshape(-1)
+    u = np.asarray(voltage_V, dtype=float).reshape(-1)
+    if t.size < 2:
+        return 1
+    model = DEAModel.from_parameters(params)
+    omega = 0.0
+    for level in {float(u[0]), float(np.max(np.abs(u)))}:
+        x = np.asarray(static_equilibrium(params, level).state, dtype=float).reshape(3)
+        omega = max(omega, float(np.max(np.abs(np.linalg.eigvals(model.jacobian(x, level))))))
+    substeps = math.ceil(omega * float(np.max(np.diff(t))) / max_omega_h - 1e-9)
+    return int(min(max(substeps, 1), MAX_SUBSTEPS))
+
+
 class TransientCollocation:
     """Hermite-Simpson whole-trajectory solver for one sampled voltage record.
 
@@ -215,6 +247,12 @@ class TransientCollocation:
     :meth:`solve` for each parameter set. The last solution is kept as the
     warm start of the next call unless ``warm_start=False``.
     """
+
+    @classmethod
+    def for_record(cls, params: MembraneParameters, time_s, voltage_V, hold: str = "zoh", **options):
+        """The solver of a record, its grid fine enough for the membrane ``params``
+        (:func:`record_substeps`; the parameters of later solves may differ: the grid is kept)."""
+        return cls(time_s, voltage_V, hold=hold, substeps=record_substeps(params, time_s, voltage_V), **options)
 
     def __init__(self, time_s, voltage_V, hold: str = "zoh", substeps: int = 1,
                  tol: float = 1e-5, max_iter: int = 25):
