@@ -4,9 +4,10 @@
 determines it only in combination with sigma_h(1) and eps_r; stage 1 started from the static fit's free slope
 failed on a demo bag) and fits it in the joint refinement (``joint_slope``). Held there as well, the base's
 slope (A2's, 3.9 % from the mock membrane's) moves sigma_h(1) and k1 beyond their intervals: on the demo's
-'paper' protocol on the mock membrane (250 Hz records), sigma_h(1) at z +2.7..+4.6 on four of six seeds and k1
-at z +1.7..+2.2 on five, fitted |z| <= 1.6 for both (docs/benchmarks.md, issue 21 session 17). The data here: that protocol on that membrane from converged forward
-integration of the held voltage with 1 um laser noise and the laser's quantisation
+'paper' protocol on the mock membrane (250 Hz records), sigma_h(1)'s interval
+misses the truth in four of six seeds (z +2.7..+4.6) and k1's in two (z +2.05, +2.19); fitted, |z| <= 1.6 for
+both (docs/benchmarks.md, issue 21 session 17). The data here: that protocol on that membrane from converged
+forward integration of the held voltage with 1 um laser noise and the laser's quantisation
 (:func:`~dea_ros.identify.synth_rig.record_protocol`), never from the harmonic balance the fit uses."""
 import pytest
 
