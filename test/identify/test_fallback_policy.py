@@ -64,23 +64,24 @@ def test_the_scan_skips_creep_times_whose_start_fails_and_the_fit_bounds_its_int
     assert result.parameters.eta2_Pa_s == pytest.approx(truth.eta2_Pa_s, rel=0.02)
 
 
-def test_when_every_start_fails_the_scan_integrates(synthetic, monkeypatch):
+def _failing_everywhere(synthetic, monkeypatch):
+    """(truth, objective, calls): A2's synthetic data, harmonic balance failing at every creep time."""
     _folder, exp = synthetic("A2")
     truth = preset("A2")
     points = select_fit_frequencies(exp.sines)
-    calls = _failing_above(monkeypatch, 0.0, points[-1].frequency_Hz)    # everywhere
-    objective = DynamicObjective(truth, exp.steps, points)
+    calls = _failing_above(monkeypatch, 0.0, points[-1].frequency_Hz)
+    return truth, DynamicObjective(truth, exp.steps, points), calls
+
+
+def test_when_every_start_fails_the_scan_integrates(synthetic, monkeypatch):
+    _truth, objective, calls = _failing_everywhere(synthetic, monkeypatch)
     starts, info = initial_guess(objective)
     assert starts and "scan_skipped_tau_s" not in info and calls["integrations"] > 0
     assert np.all(np.isfinite(starts[0]))
 
 
 def test_a_trial_point_where_harmonic_balance_fails_is_rejected_and_counted(synthetic, monkeypatch):
-    _folder, exp = synthetic("A2")
-    truth = preset("A2")
-    points = select_fit_frequencies(exp.sines)
-    calls = _failing_above(monkeypatch, 0.0, points[-1].frequency_Hz)    # everywhere
-    objective = DynamicObjective(truth, exp.steps, points)
+    truth, objective, calls = _failing_everywhere(synthetic, monkeypatch)
     theta = np.log([truth.k1_Pa, truth.eta1_Pa_s, truth.eta2_Pa_s])
     with objective.integration_fallback(False):
         residuals = objective.trial_residuals(theta)
