@@ -79,8 +79,8 @@ def fit_bag(bag, membrane: str | None = None, topics: BagTopics = BagTopics(), s
         # fit and stage 1 hold it at the base value (stage 1 started from the static fit's unconstrained
         # slope failed on a demo bag: harmonic balance at 9.5 Hz at every start); the joint refinement
         # fits it with the step and the sines, which determine it: held there too, the base's -3.9 % put
-        # k1 +0.19..+0.37 % off at z +2.3..+4.6 on six seeds of the demo's protocol (docs/benchmarks.md,
-        # issue 21).
+        # sigma_h(1) outside its interval on four of six seeds of the demo's protocol and k1 on two
+        # (docs/benchmarks.md, issue 21 session 17).
         identify_options["stress_terms"] = 1
         dynamic = bool(experiments.steps or experiments.sines)
         identify_options.setdefault("joint_slope", dynamic)

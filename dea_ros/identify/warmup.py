@@ -11,7 +11,7 @@ clone or install even in the same cache directory): :func:`kernels_cached` is th
 skips it.
 
 ``scripts/setup_env.sh`` starts the same warm-up in the background as soon as the package is installed
-(while pip installs the ROS 2 wheels and the test tools), and ``scripts/run_tests.sh`` waits for it. Two
+(while pip installs the ROS 2 wheels and the test tools); the demo's warm-up waits for it. Two
 warm-ups of one installation never compile side by side: :func:`compile_kernels` holds a lock file in the
 cache directory, and a second one waits for the first and then finds the marker (it returns at once).
 """
