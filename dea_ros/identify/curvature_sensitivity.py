@@ -20,10 +20,10 @@ from ..errors import DeaRosError
 from ..model.parameters import MembraneParameters
 from ..solvers.inputs import SinePeriodic
 from ..solvers.sweep import frequency_sweep
-from ..solvers.transient import TransientCollocation
 from .experiments import ExperimentSet
 from .joint_fit import CURVATURE_BOUND_PA
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation
+from .step_simulation import simulate_step
 
 __all__ = ["CurvatureSensitivity", "with_curvature", "curvature_sensitivity"]
 
@@ -81,12 +81,7 @@ def _peak(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: in
 
 
 def _steps(params: MembraneParameters, experiments: ExperimentSet) -> list:
-    out = []
-    for st in experiments.steps:
-        p = params.replace(mass_kg=st.mass_kg)
-        out.append(TransientCollocation.for_record(p, st.time_s, st.voltage_V, hold=st.voltage_hold)
-                   .solve(p).displacement_m)
-    return out
+    return [simulate_step(params, st) for st in experiments.steps]
 
 
 def _ends(statistics, written: float) -> tuple:

@@ -47,10 +47,11 @@ from ..errors import FallbackRefused, HarmonicBalanceError
 from ..solvers.periodic_solution import PeriodicSolution
 from ..solvers.inputs import SinePeriodic
 from ..solvers.steady_state import integrate_to_steady_state
-from ..solvers.transient import TransientCollocation, rest_state_derivative
+from ..solvers.transient import rest_state_derivative
 from .experiments import StepData, estimate_noise_m
 from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
 from .static_fit import stress_combinations
+from .step_simulation import step_solver
 
 __all__ = ["DynamicObjective", "resolve_weights", "PAPER_WEIGHTS", "FREQUENCY_METHODS", "CURVATURE_UNIT_PA",
            ]
@@ -151,8 +152,7 @@ class DynamicObjective:
         self.n_harmonics = int(n_harmonics)
         self.progress = progress
         self.integration_options = dict(integration_options or {})
-        self.solvers = [TransientCollocation.for_record(static_params.replace(mass_kg=s.mass_kg), s.time_s, s.voltage_V,
-                                                        hold=s.voltage_hold) for s in self.steps]
+        self.solvers = [step_solver(static_params, s) for s in self.steps]
         # Optional 4th parameter: sigma_h''(1) moved along a (beta, gamma) direction (in MPa).
         self.direction = None
         self.base_beta_gamma = np.r_[static_params.beta_Pa, static_params.gamma_Pa]

@@ -21,12 +21,12 @@ from ..model.parameters import MembraneParameters
 from ..errors import HarmonicBalanceError
 from ..solvers.inputs import SampledVoltage
 from ..solvers.integrate import simulate
-from ..solvers.transient import TransientCollocation
 from .classification import classify_records, sweep_for
 from .experiments import ExperimentSet, SineData, SineSeries, StaticData, StepData, estimate_noise_m
 from .frequency_points import FrequencyPoint, point_solution
 from .jsonable import jsonable
 from .metrics import measured_resonance_peak, static_errors_um, step_error_indices
+from .step_simulation import simulate_step
 
 __all__ = ["Evaluation", "StaticComparison", "StepComparison", "SineComparison", "SeriesComparison", "evaluate",
            "series_model", "DISAGREEMENT_FRACTION"]
@@ -167,7 +167,7 @@ def _compare_step(params: MembraneParameters, step: StepData, noise: float | Non
     if step.voltage_hold == "zoh" and jumps > 50:
         # A measured (noisy) voltage: every sample is a breakpoint of the adaptive integrator;
         # use the collocation solver (validated to ~1 nm against it) instead.
-        sim_d = TransientCollocation.for_record(p, step.time_s, step.voltage_V, hold="zoh").solve(p).displacement_m
+        sim_d = simulate_step(p, step)
     else:
         sim_d = simulate(p, SampledVoltage(step.time_s, step.voltage_V, hold=step.voltage_hold),
                          float(step.time_s[-1]), t_eval=step.time_s, t_start_s=float(step.time_s[0]),

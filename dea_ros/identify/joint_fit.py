@@ -51,12 +51,13 @@ from scipy.optimize import least_squares
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..errors import HarmonicBalanceError
-from ..solvers.transient import TransientCollocation, TransientError, rest_state_derivative
+from ..solvers.transient import TransientError, rest_state_derivative
 from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m
 from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
+from .step_simulation import step_solver
 from ..errors import JointFitError
 
 LOG = logging.getLogger("dea_ros.identify")
@@ -148,8 +149,7 @@ class JointObjective:
         self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
         gain = self.rep.gain                                         # (6, 4)
         self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
-        self.solvers = [TransientCollocation.for_record(start.replace(mass_kg=s.mass_kg), s.time_s, s.voltage_V,
-                                                        hold=s.voltage_hold) for s in self.steps]
+        self.solvers = [step_solver(start, s) for s in self.steps]
         self._guesses: dict = {}
         self._cache: dict = {}
         self.n_evaluations = 0

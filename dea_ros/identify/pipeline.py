@@ -33,7 +33,6 @@ import numpy as np
 
 from ..errors import IdentificationError
 from ..model.parameters import MembraneParameters
-from ..solvers.transient import TransientCollocation
 from .classification import classify_records, record_kinds
 from .determination import determine_parameters
 from .dynamic_fit import DynamicFitResult, fit_dynamic, select_fit_frequencies
@@ -43,6 +42,7 @@ from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitResult
 from .refinement import decide_curvature, refine_jointly
 from .result import IdentificationResult
 from .static_fit import StaticFitResult, fit_static, static_curvature_test, stress_combinations
+from .step_simulation import simulate_step
 from .uncertainty import response_bands
 
 __all__ = ["IdentificationOptions", "identify"]
@@ -292,11 +292,7 @@ def _transient_solver_difference_um(run: _Run, evaluation: Evaluation) -> float 
     if run.dynamic is not None and run.joint is None:
         fast = run.dynamic.step_simulated_m
     else:
-        fast = []
-        for st in run.experiments.steps:
-            p = run.params.replace(mass_kg=st.mass_kg)
-            fast.append(TransientCollocation.for_record(p, st.time_s, st.voltage_V, hold=st.voltage_hold)
-                        .solve(p).displacement_m)
+        fast = [simulate_step(run.params, st) for st in run.experiments.steps]
     return max(float(np.max(np.abs(f - c.simulated_m))) * 1e6 for f, c in zip(fast, evaluation.steps))
 
 
