@@ -58,6 +58,13 @@ class IdentificationResult:
             return self.joint.statistics
         return self.dynamic.statistics if self.dynamic is not None else None
 
+    @property
+    def slope_fitted(self) -> bool:
+        """Whether sigma_h'(1) was a free parameter of the static fit or the joint refinement (one mass on
+        the rig without a step or sine records holds it at the base value)."""
+        fits = [f.statistics for f in (self.joint, self.static) if f is not None and f.statistics is not None]
+        return any("sigma_h'(1)_Pa" in s.names for s in fits)
+
     def identification_metadata(self) -> dict:
         """What was identified and how (written next to the parameters in params.yaml).
 

@@ -14,6 +14,7 @@ import pytest
 from dea_ros.identify.bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.protocols import load_protocol
+from dea_ros.identify.report import write_parameters
 from dea_ros.identify.static_fit import stress_combinations
 from dea_ros.identify.synth_rig import T0_NS, record_protocol
 from dea_ros.model import load_parameters
@@ -42,7 +43,7 @@ def _z(result, name, true_value):
     return (st.values[i] - true_value) / st.std_error[i], st.values[i] / true_value - 1
 
 
-def test_the_joint_refinement_fits_the_slope_a_one_mass_staircase_cannot_see(one_mass_experiments):
+def test_the_joint_refinement_fits_the_slope_a_one_mass_staircase_cannot_see(one_mass_experiments, tmp_path):
     truth, experiments = one_mass_experiments
     assert len({float(m) for st in experiments.static for m in st.mass_kg if m > 0}) == 1
     true_slope = stress_combinations(truth.beta_Pa, truth.gamma_Pa)[1]
@@ -61,3 +62,9 @@ def test_the_joint_refinement_fits_the_slope_a_one_mass_staircase_cannot_see(one
         z, rel = _z(free, name, value)
         assert abs(z) < 1.96, (name, z, rel)
     assert abs(_z(free, "k1_Pa", truth.k1_Pa)[1]) < 0.005
+    # params.yaml's header says which: held, or identified with the others
+    assert held.slope_fitted is False and free.slope_fitted is True
+    held_header = write_parameters(held, tmp_path / "held.yaml").read_text().split("membrane:")[0]
+    free_header = write_parameters(free, tmp_path / "free.yaml").read_text().split("membrane:")[0]
+    assert "HELD at the base value" in held_header and "its slope and eps_r" not in held_header
+    assert "its slope and eps_r" in free_header and "HELD" not in free_header

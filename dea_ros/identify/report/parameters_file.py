@@ -28,7 +28,9 @@ def write_parameters(result: IdentificationResult, path: str | Path) -> Path:
         f"{result.options.get('refine', 'none')}",
     ]
     if result.static is not None and result.static.method == "lsq":
-        lines.append("identified: sigma_h(1), its slope and eps_r (and the curvature where the 'identification' "
+        fitted = ("sigma_h(1), its slope and eps_r" if result.slope_fitted else
+                  "sigma_h(1) and eps_r (the slope sigma_h'(1) HELD at the base value: one mass and no step or sine)")
+        lines.append(f"identified: {fitted} (and the curvature where the 'identification' "
                      "section says so); beta/gamma are one representative, not individually identifiable")
     if result.curvature_identified is False:
         lines.append("sigma_h''(1): NOT IDENTIFIED by these data; beta/gamma carry a representative value that "
