@@ -324,9 +324,12 @@ def _sine_data(cut: _Cut, series: list, noise: float | None, mass: float, source
     amps = np.array([s[1] for s in series])
     # eq. 21 with the laser noise removed and its standard uncertainty (rms_statistics), the noise
     # from the static segments (a sine record sampled at 500 Hz moves too fast for the third
-    # differences); without static segments the RMS carries no stated uncertainty
-    d0_std = noise / math.sqrt(cut.rest_n) if (noise is not None and cut.rest_n) else 0.0
-    stats = [rms_statistics(s[0], cut.rest_d0, noise, d0_std) for s in series]
+    # differences); without static segments the RMS carries no stated uncertainty. About the measured
+    # rest position, which the records state (d0_m) and the fit takes the model's RMS about as well
+    # (FrequencyPoint.rest_d0_m): its measurement error is in both and cancels, so neither the mean
+    # square's correction nor the uncertainty counts it (counted in each record's uncertainty, one error
+    # common to every record would weigh as many independent ones: issue 21, session 18)
+    stats = [rms_statistics(s[0], cut.rest_d0, noise) for s in series]
     rms = np.array([v for v, _ in stats])
     std = np.array([e for _, e in stats]) if all(e is not None for _, e in stats) else None
     if std is not None:

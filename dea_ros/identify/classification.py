@@ -268,7 +268,7 @@ def _points(classification: list, experiments: ExperimentSet) -> list:
         pts.append(FrequencyPoint(
             c["frequency_Hz"], c["amplitude_V"], c["measured_rms_m"], sine.mass_kg, sine.source,
             None if sine.d_rms_std_m is None else float(sine.d_rms_std_m[k]),
-            sine.inputs[k] if sine.inputs else None, kind=c["used"], guess=c.get("guess")))
+            sine.inputs[k] if sine.inputs else None, kind=c["used"], guess=c.get("guess"), rest_d0_m=sine.rest_d0(k)))
     return pts
 
 

@@ -76,7 +76,7 @@ def select_fit_frequencies(sines: Sequence[SineData], fit_frequencies_Hz=None,
     """
     rows = [FrequencyPoint(float(f), float(a), float(r), s.mass_kg, s.source,
                            None if s.d_rms_std_m is None else float(s.d_rms_std_m[k]),
-                           s.inputs[k] if s.inputs else None)
+                           s.inputs[k] if s.inputs else None, rest_d0_m=s.rest_d0(k))
             for s in sines
             for k, (f, a, r) in enumerate(zip(s.frequency_Hz, s.amplitude_V, s.d_rms_m))]
     if not rows:

@@ -202,6 +202,13 @@ class DynamicObjective:
             hit = self._rest_cache[key] = (d0, dd0)
         return hit
 
+    def point_rest(self, params, point: FrequencyPoint):
+        """(d0, its derivative along the curvature direction) a point's RMS is about: the measured rest
+        position the record states (fixed), else the model's (:meth:`rest`)."""
+        if point.rest_d0_m is not None:
+            return float(point.rest_d0_m), 0.0
+        return self.rest(params, point.mass_kg)
+
     @property
     def n_residuals(self) -> int:
         return sum(s.n_samples for s in self.steps) + len(self.points)
@@ -235,7 +242,7 @@ class DynamicObjective:
         p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
         with np.errstate(over="ignore", invalid="ignore"):  # rejected trial steps of DOP853
             sol = integrate_to_steady_state(p, sine, **self.integration_options)
-        return sol.displacement_rms(self.rest(params, point.mass_kg)[0])
+        return sol.displacement_rms(self.point_rest(params, point)[0])
 
     def _frequency_part(self, params, theta, jac: bool, known_sim=None):
         """Residuals (and rows) of eq. 24. ``known_sim``: RMS values already computed at theta
@@ -244,7 +251,7 @@ class DynamicObjective:
         rows = np.zeros((len(self.points), self.n_params))
         for k, point in enumerate(self.points):
             p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
-            d0, dd0 = self.rest(params, point.mass_kg)
+            d0, dd0 = self.point_rest(params, point)
             if self.frequency_method == "hbm":
                 try:
                     sol = self._hbm_solve(p, k, point)

@@ -23,7 +23,7 @@ from ..solvers.inputs import SampledVoltage
 from ..solvers.integrate import simulate
 from .classification import classify_records, sweep_for
 from .experiments import ExperimentSet, SineData, SineSeries, StaticData, StepData, estimate_noise_m
-from .frequency_points import FrequencyPoint, point_solution
+from .frequency_points import FrequencyPoint, point_solution, rms_reference_m
 from .jsonable import jsonable
 from .metrics import measured_resonance_peak, static_errors_um, step_error_indices
 from .step_simulation import simulate_step
@@ -190,7 +190,7 @@ def _record_point(sine: SineData, k: int, entry: dict, measured: bool = True) ->
     return FrequencyPoint(float(sine.frequency_Hz[k]), float(sine.amplitude_V[k]),
                           float(sine.d_rms_m[k]) if measured else 0.0, sine.mass_kg, sine.source,
                           periodic_input=sine.inputs[k] if sine.inputs else None, kind=entry["used"],
-                          guess=entry.get("guess"))
+                          guess=entry.get("guess"), rest_d0_m=sine.rest_d0(k))
 
 
 def _model_at_data(p: MembraneParameters, sine: SineData, by_rec: dict, n_harmonics: int, warnings: list):
@@ -202,12 +202,13 @@ def _model_at_data(p: MembraneParameters, sine: SineData, by_rec: dict, n_harmon
         c = by_rec.get((sine.source, k))
         if c is None or c["used"] == "left out":
             continue
+        point = _record_point(sine, k, c)
         try:
-            sol = point_solution(p, _record_point(sine, k, c), n_harmonics)
+            sol = point_solution(p, point, n_harmonics)
         except HarmonicBalanceError as exc:
             warnings.append(f"{sine.source}: no model response at {f[k]:g} Hz ({exc})")
             continue
-        model_at_data[k] = sol.displacement_rms(float(static_equilibrium(p, 0.0).displacement_m))
+        model_at_data[k] = sol.displacement_rms(rms_reference_m(p, point))   # as the fit compares it
         used[k] = c["used"]
     return model_at_data, used
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.dynamics import DEAModel
+from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..errors import HarmonicBalanceError
 from ..solvers.collocation import CollocationSystem
@@ -22,7 +23,7 @@ from ..solvers.periodic_solution import PeriodicSolution
 from ..solvers.inputs import SinePeriodic
 from ..solvers.transient import rhs_log_parameter_derivative, rhs_permittivity_derivative, rhs_stress_derivative
 
-__all__ = ["FrequencyPoint", "point_solution", "periodic_rms_gradient"]
+__all__ = ["FrequencyPoint", "point_solution", "periodic_rms_gradient", "rms_reference_m"]
 
 
 @dataclass(frozen=True)
@@ -40,11 +41,25 @@ class FrequencyPoint:
     #: "period-doubled" (period T; the full-period harmonic balance on the period-doubled branch)
     kind: str = "periodic"
     guess: object = None           # a collocation state on the matching branch (seeds harmonic balance)
+    #: the measured rest position d0 (m) the record's RMS is about (eq. 21; SineData.d0_m). The model's RMS
+    #: is then taken about the same measured value, so its measurement error, common to every record
+    #: measured from that rest, cancels instead of entering every RMS residual; None: about the model's
+    #: own rest position at 0 V
+    rest_d0_m: float | None = None
 
     @property
     def excitation(self):
         """The periodic input of eq. 24 (the applied waveform, or the nominal sine)."""
         return self.periodic_input or SinePeriodic(self.amplitude_V, self.frequency_Hz)
+
+
+def rms_reference_m(params: MembraneParameters, point: FrequencyPoint) -> float:
+    """The rest position d0 (m) a point's RMS is taken about (eq. 21): the measured one the record states
+    (``rest_d0_m``), else the model's at 0 V with the record's mass."""
+    if point.rest_d0_m is not None:
+        return float(point.rest_d0_m)
+    p = params if point.mass_kg == params.mass_kg else params.replace(mass_kg=point.mass_kg)
+    return float(static_equilibrium(p, 0.0).displacement_m)
 
 
 def point_solution(params: MembraneParameters, point: FrequencyPoint, n_harmonics: int,

@@ -234,11 +234,14 @@ class JointObjective:
             block = np.zeros((len(self.points), n_par))
             for k, pt in enumerate(self.points):
                 pp = p if pt.mass_kg == p.mass_kg else p.replace(mass_kg=pt.mass_kg)
-                d0 = float(static_equilibrium(pp, 0.0).displacement_m)
-                dd0 = rest_state_derivative(pp, 0.0, self.directions, d0)[:, 0]
+                if pt.rest_d0_m is not None:       # about the measured rest position (FrequencyPoint.rest_d0_m)
+                    d0, dd0 = float(pt.rest_d0_m), None
+                else:                              # about the model's, which moves with the stress
+                    d0 = float(static_equilibrium(pp, 0.0).displacement_m)
+                    dd0 = np.r_[rest_state_derivative(pp, 0.0, self.directions, d0)[:, 0], 0.0]
                 sol = point_solution(pp, pt, self.n_harmonics, self._guesses.get(k))
                 self._guesses[k] = sol.state
-                rms, grad = periodic_rms_gradient(pp, sol, d0, np.r_[dd0, 0.0], self.directions, permittivity=True)
+                rms, grad = periodic_rms_gradient(pp, sol, d0, dd0, self.directions, permittivity=True)
                 sim[k] = rms
                 block[k, :q] = grad[3:3 + q]
                 block[k, q] = grad[3 + q]

@@ -43,12 +43,13 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import DeaRosError, PlanningError
+from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..model.settling import SettleTime, settle_time
 from ..model.yaml_files import read_yaml_mapping
 from ..solvers.inputs import SinePeriodic
 from ..solvers.sweep import frequency_sweep
-from .determination import inverse_diagonal
+from .determination import SINGULAR_EIGENVALUE_RATIO, inverse_diagonal
 from .experiments import StaticData, StepData
 from .frequency_points import FrequencyPoint
 from .joint_fit import JointObjective
@@ -160,7 +161,6 @@ class PlanLimits:
     static_hold_s: float = 4.0                       # static hold, at least (its last static_measure_s measured)
     static_measure_s: float = 1.0
     sample_rate_Hz: float = 1000.0
-    baseline_samples: int = 1000
     #: what may be left of a transient when a record is measured (record_settle): 3 nm, a tenth of the
     #: standard error of a static point's mean (1 um laser noise, the ILD1320's, over 1 s at 1 kHz: 32 nm)
     settle_tolerance_m: float = 3e-9
@@ -400,9 +400,12 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
     if record.kind == "sine":
         excitation = SinePeriodic(record.amplitude_V, record.frequency_Hz, record.offset_V) if record.offset_V \
             else None
+        # its RMS about its measured rest position, as the fit takes it (FrequencyPoint.rest_d0_m): the rest's
+        # error cancels, so neither its uncertainty nor its move with the parameters enters the information
+        rest_m = float(static_equilibrium(p.replace(mass_kg=record.mass_kg), 0.0).displacement_m)
         points = [FrequencyPoint(record.frequency_Hz, record.amplitude_V, 0.0, record.mass_kg, record.label(),
-                                 periodic_input=excitation)]
-        rms_sigma = [noise * math.sqrt(1.0 / max(record.measured_samples, 1) + 1.0 / limits.baseline_samples)]
+                                 periodic_input=excitation, rest_d0_m=rest_m)]
+        rms_sigma = [noise / math.sqrt(max(record.measured_samples, 1))]
     elif record.kind == "step":
         t = np.arange(0.0, limits.step_pre_s + limits.step_hold_s, 1.0 / limits.sample_rate_Hz)
         u = np.where(t < limits.step_pre_s, 0.0, record.final_V)
@@ -453,7 +456,7 @@ def _criterion(widths: np.ndarray, idx, kind: str) -> float:
 
 def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
     out = {}
-    cov = np.linalg.pinv(info_rel, rcond=1e-13)
+    cov = np.linalg.pinv(info_rel, rcond=SINGULAR_EIGENVALUE_RATIO)
     for a, b, label in (("eta1_Pa_s", "eta2_Pa_s", "eta1/eta2"), ("k1_Pa", "eta1_Pa_s", "k1/eta1"),
                         ("eps_r", "sigma_h''(1)_Pa", "eps_r/sigma_h''(1)")):
         if a in first.names and b in first.names:

@@ -293,7 +293,6 @@ def _sines(params: MembraneParameters, laser: LaserReadings, freqs: np.ndarray, 
     noise_m = laser.noise_m
     clean = _clean_sines(params, amplitude_V, tuple(float(f) for f in freqs), record_s,
                          sample_rate_Hz, offsets) if freqs.size else []
-    d0_std = noise_m / math.sqrt(baseline_samples)
     for f, ts, d_true, kind in clean:
         d_noisy = laser.read(d_true)
         d0 = float(np.mean(laser.read(np.full(baseline_samples, d_rest))))   # the mean of the baseline samples
@@ -301,7 +300,9 @@ def _sines(params: MembraneParameters, laser: LaserReadings, freqs: np.ndarray, 
         if waveform == "abs_sine":
             u = np.abs(u)
         record = SineSeries(float(f), ts, u, d_noisy, source=f"synthetic sine {f:g} Hz")
-        value, std = rms_statistics(record, d0, noise_m if noise_m > 0 else None, d0_std)    # eq. 21
+        # eq. 21 about the measured baseline d0, which the record states and the fit takes the model's RMS
+        # about too (FrequencyPoint.rest_d0_m): d0's error cancels, its uncertainty is not counted
+        value, std = rms_statistics(record, d0, noise_m if noise_m > 0 else None)
         rms.append(value)
         d0s.append(d0)
         stds.append(std if std is not None else 1e-12)

@@ -361,6 +361,11 @@ class SineData:
     def n_frequencies(self) -> int:
         return int(self.frequency_Hz.size)
 
+    def rest_d0(self, k: int) -> float | None:
+        """The measured rest position d0 (m) record ``k``'s RMS is about (eq. 21), None when not stated
+        (the fit then takes the model's rest position)."""
+        return None if self.d0_m is None else float(self.d0_m[k])
+
 
 @dataclass
 class ExperimentSet:

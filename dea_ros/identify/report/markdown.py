@@ -108,7 +108,10 @@ def header(result: IdentificationResult) -> list:
     for sine in exp.sines:
         out.append(f"Sine excitation ({Path(sine.source).name}): {WAVEFORM_TEXT.get(sine.waveform, sine.waveform)}, "
                    "U = amplitude_V; the model sees u^2 only (eq. 6), the same for both waveforms. d_rms: eq. 21 "
-                   "over whole periods around the rest position d0.")
+                   "over whole periods around the rest position d0"
+                   + (", the measured one, about which the fit takes the model's d_rms as well (d0's measurement "
+                      "error cancels)." if sine.d0_m is not None else
+                      "; the data state no d0: the model's d_rms is about its own rest position."))
         if sine.inputs:
             out.append(applied_input_text(sine))
     out.append("")
