@@ -2,6 +2,8 @@
 
 ``F07``: member F07 of the coverage family (``bench/bench_coverage_family.py``): softening at stretch 1
 (sigma_h'(1) < 0), a slow creep, its upper branch folding at 12.0 Hz for a 2.5 kV sine.
+``F17``: member F17 of the coverage family: creep time 1.85 s, resonance 9.29 Hz, the record at the
+resonance on the upper branch where the model near the truth has a quasi-periodic response (test_left_static_points).
 """
 from dea_ros.model import preset
 
@@ -11,3 +13,10 @@ F07 = preset("A2").replace(
     relative_permittivity=3.3254410847486247, k1_Pa=46083050.2731271, eta1_Pa_s=610535480.0111244,
     eta2_Pa_s=12918.153146132565, beta_Pa=(-649423.5829986259, -470617.32024944725, 1002090.2299789758),
     gamma_Pa=(-251839.89282292488, -1008795.7008347407, 160775.06479202586))
+
+F17 = preset("A2").replace(
+    name="F17", prestretch=1.370434646953647, thickness_m=4.1150812811569506e-05,
+    plate_radius_m=0.004277577271131438, electrode_width_m=0.014216683245441354, mass_kg=0.005035555024226549,
+    relative_permittivity=2.889020518837167, k1_Pa=33282405.00507301, eta1_Pa_s=61591833.27546447,
+    eta2_Pa_s=13800.981842594967, beta_Pa=(-542512.6313489117, -373543.3626669269, 824264.0615509768),
+    gamma_Pa=(-102421.36120390776, -852803.6540932271, 69217.83417250344))
