@@ -262,7 +262,6 @@ class _Cut:
     #: (record, amplitude V, offset V, held-voltage times, held voltages) per sine segment
     sines: list = field(default_factory=list)
     rest_d0: float | None = None
-    rest_n: int = 0
 
 
 def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
@@ -279,7 +278,6 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
         cut.static_noise.append(sigma)
     if abs(u) < 1.0 and cut.rest_d0 is None:
         cut.rest_d0 = float(np.mean(d))
-        cut.rest_n = t.size
 
 
 def _cut_sine(cut: _Cut, line: _Timeline, seg: dict, k: int, path, label: str = "") -> None:

@@ -54,7 +54,7 @@ from ..errors import HarmonicBalanceError
 from ..solvers.transient import TransientError, rest_state_derivative
 from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m
-from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution
+from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution, rms_reference_m
 from .metrics import ParameterStatistics, parameter_statistics
 from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
 from .step_simulation import step_solver
@@ -234,11 +234,10 @@ class JointObjective:
             block = np.zeros((len(self.points), n_par))
             for k, pt in enumerate(self.points):
                 pp = p if pt.mass_kg == p.mass_kg else p.replace(mass_kg=pt.mass_kg)
-                if pt.rest_d0_m is not None:       # about the measured rest position (FrequencyPoint.rest_d0_m)
-                    d0, dd0 = float(pt.rest_d0_m), None
-                else:                              # about the model's, which moves with the stress
-                    d0 = float(static_equilibrium(pp, 0.0).displacement_m)
-                    dd0 = np.r_[rest_state_derivative(pp, 0.0, self.directions, d0)[:, 0], 0.0]
+                d0 = rms_reference_m(pp, pt)
+                # the measured rest position is fixed; the model's moves with the stress
+                dd0 = None if pt.rest_d0_m is not None else np.r_[
+                    rest_state_derivative(pp, 0.0, self.directions, d0)[:, 0], 0.0]
                 sol = point_solution(pp, pt, self.n_harmonics, self._guesses.get(k))
                 self._guesses[k] = sol.state
                 rms, grad = periodic_rms_gradient(pp, sol, d0, dd0, self.directions, permittivity=True)
