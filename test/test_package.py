@@ -200,7 +200,7 @@ class InstalledRig:
     def log(self, node: str) -> str:
         return self.logs[node].read_text(errors="replace")
 
-    def tail(self, node: str, lines: int = 30) -> str:
+    def tail(self, node: str, lines: int = 60) -> str:
         text = [ln for ln in self.log(node).splitlines() if not ln.startswith(("#", "import "))]
         return f"--- {node} (exit {self.procs[node].poll()}):\n" + "\n".join(text[-lines:])
 
@@ -241,6 +241,8 @@ class InstalledRig:
             try:
                 proc.wait(timeout=max(0.1, t_end - time.monotonic()))
             except subprocess.TimeoutExpired:
+                proc.send_signal(signal.SIGUSR1)   # the runner's faulthandler: every thread's stack to the log
+                time.sleep(2.0)
                 proc.kill()
                 proc.wait()
                 self.exit_codes.setdefault(node, "killed after 20 s")
@@ -674,6 +676,19 @@ def test_data_flows_through_the_mock_rig(rig):
     finally:
         for s in subs:
             rig.node.destroy_subscription(s)
+
+
+def test_sigusr1_prints_every_thread_of_a_node_and_the_node_goes_on(rig):
+    """The runner's diagnostic for a node that hangs (``kill -USR1 <pid>``): the stacks in its log, no stop."""
+    test_every_node_is_alive_in_the_namespace(rig)
+    start = len(rig.log("model_node"))
+    rig.procs["model_node"].send_signal(signal.SIGUSR1)
+    rig.wait(lambda: "(most recent call first)" in rig.log("model_node")[start:], 10.0, "model_node's stack dump")
+    time.sleep(0.5)                                        # the rest of the dump
+    dump = rig.log("model_node")[start:]
+    assert "in run_nodes" in dump and "model_node.py" in dump, f"the main thread's stack is not in the dump:\n{dump}"
+    time.sleep(1.0)
+    rig.check_alive()
 
 
 def test_every_node_stops_cleanly_on_sigint(rig):

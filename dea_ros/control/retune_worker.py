@@ -228,4 +228,4 @@ class BackgroundRetune:
         if self.worker is not None:
             self.worker.close()
         if self.helper is not None:
-            self.helper.shutdown(wait=False)
+            self.helper.shutdown(wait=False, cancel_futures=True)   # a fit under way is not waited for here

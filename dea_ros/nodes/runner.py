@@ -2,10 +2,15 @@ r"""Running nodes: one node per process (``ros2 run``), or several on one execut
 
 Both paths install SIGINT/SIGTERM/SIGHUP/SIGQUIT handling (Ctrl-C, kill, a closed SSH
 session, Ctrl-\) that lets a node's ``shutdown_safely()`` (the amplifier ramps its voltage
-to 0 V) run before rclpy goes down.
+to 0 V) run before rclpy goes down, and SIGUSR1 as a diagnostic: ``kill -USR1 <pid>`` prints
+the stack of every thread of the node to stderr (:mod:`faulthandler`) and the node goes on --
+for a node that hangs, before it is killed. A teardown after ``shutdown_safely()`` (destroying
+the nodes, rclpy's shutdown, the interpreter's exit) that takes longer than
+:data:`TEARDOWN_REPORT_S` prints the same stacks by itself.
 """
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import sys
@@ -13,7 +18,10 @@ import sys
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
-__all__ = ["run_node", "run_nodes"]
+__all__ = ["run_node", "run_nodes", "TEARDOWN_REPORT_S"]
+
+#: A teardown still running after this long prints every thread's stack to stderr (it is not stopped), s.
+TEARDOWN_REPORT_S = 8.0
 
 
 def _safe_shutdown(nodes) -> None:
@@ -51,6 +59,8 @@ def run_nodes(factories, args=None, threads: int = 1) -> None:
 
     catchable = [getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT") if hasattr(signal, name)]
     old = {s: signal.signal(s, on_signal) for s in catchable}
+    if hasattr(signal, "SIGUSR1"):
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     executor = _executor(threads)
     try:
         for factory in factories:
@@ -64,7 +74,8 @@ def run_nodes(factories, args=None, threads: int = 1) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        _safe_shutdown(nodes)
+        _safe_shutdown(nodes)           # the nodes' own stop (0 V, the bag closed): as long as it needs
+        faulthandler.dump_traceback_later(TEARDOWN_REPORT_S)
         for s, h in old.items():
             signal.signal(s, h)
         for node in nodes:
@@ -72,8 +83,10 @@ def run_nodes(factories, args=None, threads: int = 1) -> None:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+        faulthandler.cancel_dump_traceback_later()
 
 
 def run_node(factory, args=None) -> None:
     """``ros2 run dea_ros <node>`` entry point body."""
     run_nodes([factory], args=args if args is not None else sys.argv)
+    faulthandler.dump_traceback_later(TEARDOWN_REPORT_S)   # the process exits next (threads joined, atexit)
