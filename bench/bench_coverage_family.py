@@ -16,6 +16,13 @@ sample. Two sine sets: the paper's four fit frequencies (0.2, 8.3, 11.2, 40 Hz) 
 placed around each membrane's own resonance. The identification is the default one
 (``identify(exp, evaluate_fit=False)``: the paper's stage 1, classification, joint refinement).
 
+Noise: run ``seed`` of membrane ``F<i>`` draws its laser noise and start phases from the noise seed
+``noise_seed(i, seed)`` (``--noise per-membrane``, the default since session 19): every run independent.
+``--noise shared`` uses ``seed`` itself for every membrane (sessions 13-18): the same noise sequence and
+start phases on each membrane, so the runs of one seed are correlated (session 18's 17-frequency k1: the
+per-seed mean z -1.05, -1.10, +0.17, -0.57, -0.42 over ~19 membranes each, where independent runs would
+scatter by ~0.23) and the family's mean z rests on five draws.
+
 Per parameter: median and worst relative error, the share of 95 % intervals that contain the
 truth, and z = (value - truth) / std. error (mean and std over all runs); sigma_h''(1) counted only
 where identified; the resonance peak of the fitted model against the true one.
@@ -123,14 +130,22 @@ def truth(p, name: str) -> float:
     return p.relative_permittivity if name == "eps_r" else float(getattr(p, name))
 
 
-def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int, data: str = "orbit") -> dict:
+def noise_seed(member: str, seed: int) -> int:
+    """The noise seed of run ``seed`` (1, 2, ...) of family member ``member`` ('F07'): independent per member."""
+    index = int(member.lstrip("F")) if member.lstrip("F").isdigit() else sum(map(ord, member))
+    return int(np.random.SeedSequence([2110, index, seed]).generate_state(1)[0])
+
+
+def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int, data: str = "orbit",
+            noise: str = "per-membrane") -> dict:
     freqs = PAPER_HZ if kind == "paper" else seventeen(f_r)
+    run_seed = seed if noise == "shared" else noise_seed(p.name, seed)
     t0 = time.perf_counter()
     held = {}
     if data == "held":     # one held-voltage run from rest through the bag extraction (identify.synth_rig)
         protocol = rig_protocol(p, freqs)
         try:
-            exp, rec = rig_experiments(p, protocol, seed=seed, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
+            exp, rec = rig_experiments(p, protocol, seed=run_seed, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
                                        quantisation_m=LASER_QUANTISATION_M)
         except IntegrationError as exc:    # halving the tolerance moved the run: no converged data
             return {"membrane": p.name, "kind": kind, "seed": seed, "data": data, "error": str(exc), "params": {},
@@ -138,13 +153,14 @@ def one_run(p, f_r: float, true_peak: dict, kind: str, seed: int, data: str = "o
         held = {"protocol_s": protocol.duration_s(), "settle": dataclasses.asdict(rig_settle_times(p)),
                 "tolerance_check_m": rec.tolerance_check_m}
     else:
-        exp = synthesize_experiments(p, 1e-6, seed=seed, sine_frequencies_Hz=freqs, series_frequencies_Hz=(),
+        exp = synthesize_experiments(p, 1e-6, seed=run_seed, sine_frequencies_Hz=freqs, series_frequencies_Hz=(),
                                      quantisation_m=LASER_QUANTISATION_M, random_start_phase=True)
     t1 = time.perf_counter()
     res = identify(exp, evaluate_fit=False)
     t2 = time.perf_counter()
     st = res.statistics
-    rec = {"membrane": p.name, "kind": kind, "seed": seed, "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r,
+    rec = {"membrane": p.name, "kind": kind, "seed": seed, "noise": noise, "noise_seed": run_seed,
+           "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r,
            "curvature_status": res.curvature_status, "joint_failed": res.joint is None, "synth_s": t1 - t0,
            "identify_s": t2 - t1, "params": {}, "data": data, **held}
     for n in NAMES:
@@ -194,6 +210,16 @@ def table(records: list) -> list[str]:
             out.append(f"| {label} | resonance peak f / d_rms | {pf.size} | "
                        f"{np.median(pf):.3g} % / {np.median(pd):.3g} % "
                        f"| {pf.max():.3g} % / {pd.max():.3g} % | | |")
+        seeds = sorted({r["seed"] for r in rs})
+        if len(seeds) > 1:        # runs of one seed share their noise under --noise shared: see the spread
+            per_seed = []
+            for n in NAMES[:4]:
+                means = [np.mean([r["params"][n]["z"] for r in rs if r["seed"] == sd and n in r["params"]] or [np.nan])
+                         for sd in seeds]
+                per_seed.append(f"{n} " + " ".join(f"{m:+.2f}" for m in means))
+            noise = sorted({r.get("noise", "shared") for r in rs})
+            out.append(f"| {label} | mean z per seed {seeds} (noise: {', '.join(noise)}) | {len(rs)} | "
+                       + "; ".join(per_seed) + " | | | |")
         failed = sum(bool(r.get("joint_failed")) for r in rs)
         out.append(f"| {label} | joint refinement failed (the two-stage result is counted) | {len(rs)} | "
                    f"{failed} / {len(rs)} runs | | | |")
@@ -246,6 +272,9 @@ def main() -> None:
     ap.add_argument("--data", default="orbit", choices=("orbit", "held"),
                     help="orbit: synth's records (periodic orbit, step from rest); held: one held-voltage run "
                          "from rest per set, cut by the bag extraction (identify.synth_rig)")
+    ap.add_argument("--noise", default="per-membrane", choices=("per-membrane", "shared"),
+                    help="per-membrane: each run's noise seed from (member, seed), independent runs; shared: the "
+                         "seed itself on every member (sessions 13-18; the runs of a seed are correlated)")
     args = ap.parse_args()
     path = Path(args.jsonl)
     path.parent.mkdir(exist_ok=True)
@@ -261,7 +290,7 @@ def main() -> None:
                 for kind in args.sets.split(","):
                     if (p.name, kind, seed) in have:
                         continue
-                    rec = one_run(p, f_r, true_peak, kind, seed, args.data)
+                    rec = one_run(p, f_r, true_peak, kind, seed, args.data, args.noise)
                     done.append(rec)
                     with path.open("a") as fh:
                         fh.write(json.dumps(rec) + "\n")
