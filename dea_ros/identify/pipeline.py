@@ -40,7 +40,7 @@ from .evaluation import Evaluation, evaluate
 from .experiments import ExperimentSet, data_warnings
 from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitResult
 from .refinement import decide_curvature, refine_jointly
-from .result import IdentificationResult
+from .result import IdentificationResult, reported_statistics
 from .static_fit import StaticFitResult, fit_static, static_curvature_test, stress_combinations
 from .step_simulation import simulate_step
 from .uncertainty import response_bands
@@ -111,6 +111,8 @@ class _Run:
     static: StaticFitResult | None = None
     dynamic: DynamicFitResult | None = None
     joint: JointFitResult | None = None
+    #: no refinement (rejected or failed): the joint objective linearised at the reported two-stage result
+    two_stage_linearisation: JointFitResult | None = None
     classification: list = field(default_factory=list)
     stage1_freqs: list = field(default_factory=list)      # the frequency points of the paper's fit
     direction: np.ndarray | None = None                    # sigma_h''(1) in stage 1 (fit_curvature True)
@@ -255,6 +257,7 @@ def _refinement_stage(run: _Run) -> None:
         run.timings["classification"] += rounds.classification_s
         run.warnings += rounds.warnings
         run.params, run.classification, run.joint = rounds.parameters, rounds.classification, rounds.joint
+        run.two_stage_linearisation = rounds.two_stage_linearisation
         run.timings["joint_fit"] = time.perf_counter() - t0
         if rounds.joint is not None:
             run.warnings += rounds.joint.warnings
@@ -310,8 +313,7 @@ def _evaluation_stage(run: _Run) -> Evaluation:
 def _uncertainty_stage(run: _Run, evaluation: Evaluation, engine) -> list:
     """Monte Carlo confidence bands of the frequency response over the final covariance."""
     t0 = time.perf_counter()
-    statistics = run.joint.statistics if run.joint is not None else (
-        run.dynamic.statistics if run.dynamic is not None else None)
+    statistics = reported_statistics(run.joint, run.two_stage_linearisation, run.dynamic)
     peaks = {(s.sine.source, r["amplitude_V"]): r.get("simulated_peak_Hz") for s in evaluation.sines
              for r in s.resonance}
     bands, warnings = response_bands(run.params, statistics, run.experiments, int(run.options.uncertainty_samples),
@@ -334,9 +336,10 @@ def _options_used(run: _Run) -> dict:
 
 
 def _determination(run: _Run) -> list:
-    """Per parameter: status, interval and the records that determine it (the joint fit's Jacobian)."""
-    if run.joint is not None:
-        return determine_parameters(run.joint.statistics, run.joint.jacobian, run.joint.row_records)
+    """Per parameter: status, interval and the records that determine it (the joint objective's Jacobian)."""
+    joint = run.joint if run.joint is not None else run.two_stage_linearisation
+    if joint is not None:
+        return determine_parameters(joint.statistics, joint.jacobian, joint.row_records)
     stats = run.dynamic.statistics if run.dynamic is not None else (
         run.static.statistics if run.static is not None else None)
     return determine_parameters(stats)
@@ -371,7 +374,8 @@ def identify(experiments: ExperimentSet, options: IdentificationOptions | None =
     seen = set()
     unique = [w for w in run.warnings if not (w in seen or seen.add(w))]   # duplicates dropped, order kept
     return IdentificationResult(experiments, run.params, run.static, run.dynamic, evaluation, run.timings, unique,
-                                _options_used(run), joint=run.joint, classification=run.classification,
+                                _options_used(run), joint=run.joint,
+                                two_stage_linearisation=run.two_stage_linearisation, classification=run.classification,
                                 curvature_identified=run.curvature_identified,
                                 curvature_written_Pa=curvature_written, curvature_status=run.curvature_status,
                                 uncertainty=bands, determination=_determination(run),

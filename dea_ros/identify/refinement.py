@@ -27,7 +27,7 @@ from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points, leave_out_for_a_round
 from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
 from .experiments import ExperimentSet
-from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
+from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint, linearise_joint
 from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
 __all__ = ["JointRounds", "CurvatureDecision", "refine_jointly", "decide_curvature", "static_sigma",
@@ -44,6 +44,10 @@ class JointRounds:
     fallback_beta_gamma: np.ndarray     # the base (beta, gamma) of the curvature terms
     classification_s: float = 0.0       # time spent classifying again
     warnings: list = field(default_factory=list)
+    #: joint None (the refinement rejected or failed): the joint objective linearised at the two-stage result
+    #: (:func:`~.joint_fit.linearise_joint`), whose statistics are the reported intervals; None if it does
+    #: not evaluate there (the dynamic fit's intervals, conditional on the static stage, are reported)
+    two_stage_linearisation: JointFitResult | None = None
 
 
 @dataclass
@@ -118,13 +122,17 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
     the two-stage parameters has only a quasi-periodic response of 790 um; static chi-square 7.7 -> 36682,
     eta1 x1000). It is done again from the two-stage result without the records whose response the model
     there does not have (data and model kinds differ); if that leaves the static points too, or there is
-    no such record, the two-stage result is reported with the reason."""
+    no such record, the two-stage result is reported with the reason, and with the intervals of the joint
+    objective linearised there (``two_stage_linearisation``): the dynamic fit's hold the static stage's
+    parameters fixed (F05, 17 frequencies: k1 at z +67)."""
     fallback = curvature_fallback(static, params)
     slope = stress_terms >= 2 if fit_slope is None else bool(fit_slope)
     fit_c = (fit_curvature is not False) and (bool(experiments.sines) or stress_terms >= 3)
     rounds = _rounds(params, static, classification, experiments, n_harmonics, fit_c, stress_terms, progress, slope,
                      fallback)
-    if rounds.joint is None or not experiments.sines:
+    if rounds.joint is None:
+        return _two_stage_reported(rounds, static, experiments, n_harmonics, fit_c, stress_terms, slope, fallback)
+    if not experiments.sines:
         return rounds
     start_chi2 = _static_chi2(static)
     if not _left_the_static_points(rounds.joint, start_chi2, static):
@@ -150,8 +158,30 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
                 "of the kind the data show)"] + retry.warnings
             return retry
         rounds.classification_s = retry.classification_s
-    return JointRounds(None, params, classification, fallback, rounds.classification_s, rounds.warnings + [
-        f"{left}; the two-stage result is reported"])
+    rejected = JointRounds(None, params, classification, fallback, rounds.classification_s, rounds.warnings)
+    return _two_stage_reported(rejected, static, experiments, n_harmonics, fit_c, stress_terms, slope, fallback,
+                               f"{left}; the two-stage result is reported")
+
+
+def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiments: ExperimentSet,
+                        n_harmonics: int, fit_c: bool, stress_terms: int, slope: bool, fallback: np.ndarray,
+                        reason: str = "") -> JointRounds:
+    """``rounds`` without a refinement, with the joint objective linearised at its parameters (reported)."""
+    try:
+        rounds.two_stage_linearisation = linearise_joint(
+            rounds.parameters, experiments.all_static(), experiments.steps,
+            fitted_points(rounds.classification, experiments),
+            static_sigma(static), noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
+            fit_curvature=fit_c, fit_slope=slope,
+            curvature_fallback_Pa=float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics=n_harmonics,
+            curvature_from_static=stress_terms >= 3)
+        note = ("its intervals are those of the joint objective linearised there (every parameter free, the static "
+                "stage's uncertainty included)")
+    except JointFitError as exc:
+        note = (f"its intervals are the dynamic fit's, which hold the static stage's parameters fixed and are too "
+                f"narrow ({exc})")
+    rounds.warnings = rounds.warnings + [f"{reason}; {note}" if reason else f"the two-stage result: {note}"]
+    return rounds
 
 
 def _static_chi2(static: StaticFitResult) -> float:

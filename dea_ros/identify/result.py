@@ -19,7 +19,16 @@ from .jsonable import jsonable
 from .metrics import linear_combination_ci
 from .static_fit import StaticFitResult, stress_combinations
 
-__all__ = ["IdentificationResult"]
+__all__ = ["IdentificationResult", "reported_statistics"]
+
+
+def reported_statistics(joint, two_stage_linearisation, dynamic):
+    """The statistics of the reported parameters: the joint refinement's; without one, the joint objective's
+    linearised at the two-stage result; else the dynamic fit's (conditional on the static stage); None."""
+    for fit in (joint, two_stage_linearisation, dynamic):
+        if fit is not None:
+            return fit.statistics
+    return None
 
 
 @dataclass
@@ -37,6 +46,9 @@ class IdentificationResult:
     options: dict = field(default_factory=dict)
     joint: JointFitResult | None = None
     classification: list = field(default_factory=list)   # one entry per sine record (see classify_records)
+    #: no joint refinement (rejected or failed): the joint objective linearised at the reported two-stage
+    #: result (:func:`~dea_ros.identify.joint_fit.linearise_joint`); its statistics are the reported intervals
+    two_stage_linearisation: JointFitResult | None = None
     #: sigma_h''(1): True identified (written), False not identified (base value written), None not fitted
     curvature_identified: bool | None = None
     curvature_written_Pa: float | None = None
@@ -53,10 +65,8 @@ class IdentificationResult:
 
     @property
     def statistics(self):
-        """The statistics of the final parameters: the joint refinement's, else the dynamic fit's."""
-        if self.joint is not None:
-            return self.joint.statistics
-        return self.dynamic.statistics if self.dynamic is not None else None
+        """The statistics of the final parameters (:func:`reported_statistics`)."""
+        return reported_statistics(self.joint, self.two_stage_linearisation, self.dynamic)
 
     @property
     def slope_fitted(self) -> bool:
@@ -82,7 +92,9 @@ class IdentificationResult:
 
         meta = {
             "method": "joint refinement (statistical weights)" if self.joint is not None else
-                      f"two-stage (paper), weights {self.options.get('weights')}",
+                      f"two-stage (paper), weights {self.options.get('weights')}" + (
+                          "; intervals: the joint objective linearised at the two-stage result (every parameter "
+                          "free)" if self.two_stage_linearisation is not None else ""),
             "stress_derivatives": "w.r.t. lambda_r at lambda_r = 1 (eq. 10)",
             "sigma_h(1)_Pa": float(c[0]),
             "sigma_h(1)_Pa_ci95": ci(s_stats, {"sigma_h(1)_Pa": 1.0}),

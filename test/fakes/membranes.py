@@ -4,6 +4,9 @@
 (sigma_h'(1) < 0), a slow creep, its upper branch folding at 12.0 Hz for a 2.5 kV sine.
 ``F17``: member F17 of the coverage family: creep time 1.85 s, resonance 9.29 Hz, the record at the
 resonance on the upper branch where the model near the truth has a quasi-periodic response (test_left_static_points).
+``F05``: member F05 of the coverage family: creep time 7.38 s, resonance 8.97 Hz; with 17 frequencies and noise
+seed 1517422253 its joint refinement leaves the static points with no unreachable record to leave out
+(test_rejected_refinement).
 """
 from dea_ros.model import preset
 
@@ -20,3 +23,10 @@ F17 = preset("A2").replace(
     relative_permittivity=2.889020518837167, k1_Pa=33282405.00507301, eta1_Pa_s=61591833.27546447,
     eta2_Pa_s=13800.981842594967, beta_Pa=(-542512.6313489117, -373543.3626669269, 824264.0615509768),
     gamma_Pa=(-102421.36120390776, -852803.6540932271, 69217.83417250344))
+
+F05 = preset("A2").replace(
+    name="F05", prestretch=1.1476227383389705, thickness_m=4.8220560675391296e-05,
+    plate_radius_m=0.005007222424129883, electrode_width_m=0.015176958400785947, mass_kg=0.00531654402858023,
+    relative_permittivity=3.0398337282972654, k1_Pa=36161300.55999581, eta1_Pa_s=267030297.71074435,
+    eta2_Pa_s=7278.5810059329215, beta_Pa=(-608104.4283698774, -378234.81793036277, 844384.0095091542),
+    gamma_Pa=(48422.94792962354, -750014.6681097824, 15225.448531533999))

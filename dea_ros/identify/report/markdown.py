@@ -444,8 +444,20 @@ def _joint_fit_lines(jt) -> list:
             _stats_table(jt.statistics)]
 
 
+def _two_stage_linearisation_lines(lin) -> list:
+    blocks = ", ".join(f"{k} {_fmt(v)}" for k, v in lin.block_chi2.items())
+    return ["## Intervals of the two-stage result (no joint refinement)", "",
+            "The joint refinement was rejected or failed (see the warnings), so the parameters are the two-stage "
+            "result's. Its intervals: the joint objective (the refinement's chi-square, statistical weights) "
+            "linearised at the two-stage result, every parameter free -- the static stage's uncertainty included, "
+            "which the dynamic fit's table above leaves out (it holds eps_r and the stress at the static fit's "
+            f"values). chi-square there {_fmt(lin.cost)} for {lin.dof} degrees of freedom ({blocks}).", "",
+            _stats_table(lin.statistics)]
+
+
 def fits_section(result: IdentificationResult) -> list:
-    """The static fit, the dynamic fit (stage 1) and the joint refinement, each with its statistics."""
+    """The static fit, the dynamic fit (stage 1) and the joint refinement (or, without one, the two-stage
+    result's linearised intervals), each with its statistics."""
     out = []
     if result.static is not None:
         out += _static_fit_lines(result.static)
@@ -453,6 +465,8 @@ def fits_section(result: IdentificationResult) -> list:
         out += _dynamic_fit_lines(result.dynamic, result.joint)
     if result.joint is not None:
         out += _joint_fit_lines(result.joint)
+    elif result.two_stage_linearisation is not None:
+        out += _two_stage_linearisation_lines(result.two_stage_linearisation)
     return out
 
 
