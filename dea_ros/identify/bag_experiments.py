@@ -258,6 +258,7 @@ class _Cut:
     static_d: list = field(default_factory=list)
     static_noise: list = field(default_factory=list)
     static_motion: list = field(default_factory=list)   # RMS about the linear trend of each point's window
+    static_samples: list = field(default_factory=list)  # samples averaged per point
     steps: list = field(default_factory=list)
     #: (record, amplitude V, offset V, held-voltage times, held voltages) per sine segment
     sines: list = field(default_factory=list)
@@ -272,6 +273,7 @@ def _cut_static(cut: _Cut, line: _Timeline, seg: dict, k: int, path) -> None:
     cut.static_u.append(u)
     cut.static_d.append(float(np.mean(d)))
     cut.static_motion.append(detrended_rms(t, d))
+    cut.static_samples.append(int(d.size))
     # the laser noise at a constant voltage (third differences: ringing after the change hardly enters)
     sigma = third_difference_noise(d)
     if sigma is not None:
@@ -379,8 +381,12 @@ def experiments_from_signals(signals: BagSignals, path, segments_file=None, memb
     # the laser noise, from the static segments (third differences at a constant voltage)
     noise = float(np.sqrt(np.mean(np.square(cut.static_noise)))) if cut.static_noise else None
     noise = noise if (noise is not None and 0.0 < noise < 1e-3) else None   # (noise-free test data: none)
+    # each point's mean: the laser noise (the run's, else the point's own scatter) over sqrt(samples)
+    per_sample = np.full(len(cut.static_u), noise) if noise is not None else np.array(cut.static_motion)
+    std_error = np.where(per_sample > 0.0, per_sample, np.nan) / np.sqrt(np.maximum(cut.static_samples, 1))
     static = [StaticData(np.full(len(cut.static_u), mass), np.array(cut.static_u), np.array(cut.static_d),
-                         source=f"{path} static segments", motion_rms_m=np.array(cut.static_motion))
+                         source=f"{path} static segments", motion_rms_m=np.array(cut.static_motion),
+                         std_error_m=std_error)
               ] if cut.static_u else []
     # one SineData per waveform: |U sin| (no offset) and offset + U sin (a planned second pass may add it)
     groups = [[s for s in cut.sines if s[2] == 0.0], [s for s in cut.sines if s[2] != 0.0]]

@@ -123,14 +123,14 @@ class JointObjective:
     """Weighted residuals of all data and their Jacobian w.r.t. the joint parameters (module docstring)."""
 
     def __init__(self, start: MembraneParameters, static: StaticData | None, steps: Sequence[StepData],
-                 points: Sequence[FrequencyPoint], static_sigma_m: float, step_sigmas_m, point_sigmas_m,
+                 points: Sequence[FrequencyPoint], static_sigma_m, step_sigmas_m, point_sigmas_m,
                  prior_beta_gamma=None, fit_curvature: bool = True, n_harmonics: int = 8,
                  fit_slope: bool = True):
         self.start = start
         self.static = static
         self.steps = list(steps)
         self.points = list(points)
-        self.static_sigma = float(static_sigma_m)
+        self.static_sigma = np.asarray(static_sigma_m, float)     # one value, or one per static point
         self.step_sigmas = np.asarray(step_sigmas_m, float)
         self.point_sigmas = np.asarray(point_sigmas_m, float)
         self.n_harmonics = int(n_harmonics)
@@ -206,7 +206,7 @@ class JointObjective:
             block[:, q] = jac7[:, 6]
             r = (d - self.static.displacement_m) / self.static_sigma
             res.append(r)
-            rows.append(block / self.static_sigma)
+            rows.append(block / (self.static_sigma[:, None] if self.static_sigma.ndim else self.static_sigma))
             details["static_predicted_m"] = d
             details["blocks"]["static"] = float(r @ r)
         # -- steps (eq. 23)
@@ -289,7 +289,7 @@ def fit_joint(
     static: StaticData | None,
     steps: Sequence[StepData],
     points: Sequence[FrequencyPoint],
-    static_sigma_m: float,
+    static_sigma_m,   # m: one value, or one per static point
     noise_m: float | None = None,
     prior_beta_gamma=None,
     fit_curvature: bool = True,
@@ -342,7 +342,8 @@ def fit_joint(
                             f"scatter about the fit, {sig * 1e6:.3g} um")
     except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
         raise JointFitError(f"joint refinement failed: {exc}") from None
-    sigmas = {"static_m": static_sigma_m, "step_m": list(step_s), "rms_m": [float(s) for s in point_s]}
+    sigmas = {"static_m": _static_sigma_value(static_sigma_m), "step_m": list(step_s),
+              "rms_m": [float(s) for s in point_s]}
     return _joint_result(objective, sol, lo, hi, sigmas, warnings, curvature_fallback_Pa, curvature_rel_ci_limit, t0)
 
 
@@ -360,7 +361,7 @@ def linearise_joint(
     static: StaticData | None,
     steps: Sequence[StepData],
     points: Sequence[FrequencyPoint],
-    static_sigma_m: float,
+    static_sigma_m,
     noise_m: float | None = None,
     prior_beta_gamma=None,
     fit_curvature: bool = True,
@@ -402,11 +403,18 @@ def linearise_joint(
             objective = objective_from(point_s)
             warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
                             f"scatter about the start, {sig * 1e6:.3g} um")
-        sigmas = {"static_m": static_sigma_m, "step_m": list(step_s), "rms_m": [float(s) for s in point_s]}
+        sigmas = {"static_m": _static_sigma_value(static_sigma_m), "step_m": list(step_s),
+                  "rms_m": [float(s) for s in point_s]}
         return _joint_result(objective, _NotMinimised(x), lo, hi, sigmas, warnings, curvature_fallback_Pa,
                              curvature_rel_ci_limit, t0)
     except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
         raise JointFitError(f"the joint objective does not evaluate at the start: {exc}") from None
+
+
+def _static_sigma_value(static_sigma_m):
+    """The static points' weight as the result states it: one value (m), or the list of the points' own."""
+    sig = np.asarray(static_sigma_m, float)
+    return float(sig) if sig.ndim == 0 else [float(v) for v in sig]
 
 
 def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):

@@ -26,7 +26,7 @@ from scipy import stats as scipy_stats
 from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points, leave_out_for_a_round
 from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
-from .experiments import ExperimentSet
+from .experiments import ExperimentSet, StaticData
 from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint, linearise_joint
 from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
@@ -63,22 +63,36 @@ class CurvatureDecision:
     sensitivity: CurvatureSensitivity | None = None
 
 
-def static_sigma(static: StaticFitResult | None) -> float:
-    """Weight of the static points in the joint chi-square: the static fit's residual standard
-    deviation s, times t_0.975(dof) / z_0.975 -- s comes from few points (e.g. 9 degrees of freedom),
-    and the joint intervals, which use the quantile of the joint fit's many degrees of freedom,
-    would otherwise be too narrow for the parameters the static points determine (sigma_h(1))."""
+def static_sigma(static: StaticFitResult | None, data: StaticData | None = None):
+    """Weight of the static points in the joint chi-square (m): one value, or one per point.
+
+    Where every point of ``data`` (the static fit's points) states its standard uncertainty (the laser noise
+    over the square root of the samples it averages: :attr:`StaticData.std_error_m`), each point is weighted
+    with its own, scaled up where the static fit's residuals scatter more than those say (a model error):
+    by sqrt(chi^2 / dof) of the residuals in their units, times t_0.975(dof) / z_0.975 (the scale is then
+    estimated from few points). Their errors differ: the coverage family's 0 V points at the other masses
+    scatter by 0.02-0.04 um, the rig's static segments by 0.05-0.12 um; one pooled value trusted the latter
+    too much and made the intervals of k1 and eps_r, which the static points carry 45-95 % of, too narrow
+    (issue 21, session 19).
+
+    Otherwise one value: the static fit's residual standard deviation s, times t_0.975(dof) / z_0.975 -- s
+    comes from few points (e.g. 9 degrees of freedom), and the joint intervals, which use the quantile of the
+    joint fit's many degrees of freedom, would otherwise be too narrow for the parameters the static points
+    determine (sigma_h(1))."""
     if static is None:
         return 1.0
     st = static.statistics
-    s = float(st.residual_std) if st is not None and math.isfinite(st.residual_std) else float("nan")
     dof = int(st.dof) if st is not None else 0
+    t_over_z = float(scipy_stats.t.ppf(0.975, dof) / scipy_stats.norm.ppf(0.975)) if dof >= 1 else 1.0
+    stated = data.stated_std_m if data is not None else None
+    if stated is not None and stated.size == static.residuals_m.size and dof >= 1:
+        ratio = float(np.sum((static.residuals_m / stated) ** 2)) / dof
+        return stated * (math.sqrt(ratio) * t_over_z if ratio > 1.0 else 1.0)
+    s = float(st.residual_std) if st is not None and math.isfinite(st.residual_std) else float("nan")
     if not (math.isfinite(s) and s > 0):
         r = static.residuals_m
         s = float(np.sqrt(np.mean(r**2))) if r.size else 1e-7
-    if dof >= 1:
-        s *= float(scipy_stats.t.ppf(0.975, dof) / scipy_stats.norm.ppf(0.975))
-    return max(s, 1e-9)
+    return max(s * t_over_z, 1e-9)
 
 
 def curvature_fallback(static: StaticFitResult | None, params: MembraneParameters) -> np.ndarray:
@@ -94,7 +108,8 @@ def _joint_fit(start: MembraneParameters, static: StaticFitResult, experiments: 
                fit_curvature, stress_terms: int, fallback_Pa: float, n_harmonics: int, progress,
                fit_slope: bool) -> JointFitResult:
     """:func:`fit_joint` on all the data with the static fit's weight and prior."""
-    return fit_joint(start, experiments.all_static(), experiments.steps, points, static_sigma(static),
+    data = experiments.all_static()
+    return fit_joint(start, data, experiments.steps, points, static_sigma(static, data),
                      noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
                      fit_curvature=fit_curvature, fit_slope=fit_slope, curvature_fallback_Pa=fallback_Pa,
                      n_harmonics=n_harmonics, progress=progress, curvature_from_static=stress_terms >= 3)
@@ -134,7 +149,7 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
         return _two_stage_reported(rounds, static, experiments, n_harmonics, fit_c, stress_terms, slope, fallback)
     if not experiments.sines:
         return rounds
-    start_chi2 = _static_chi2(static)
+    start_chi2 = _static_chi2(static, experiments.all_static())
     if not _left_the_static_points(rounds.joint, start_chi2, static):
         return rounds
     left = (f"the joint refinement left the static points (their chi-square "
@@ -168,10 +183,10 @@ def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiment
                         reason: str = "") -> JointRounds:
     """``rounds`` without a refinement, with the joint objective linearised at its parameters (reported)."""
     try:
+        data = experiments.all_static()
         rounds.two_stage_linearisation = linearise_joint(
-            rounds.parameters, experiments.all_static(), experiments.steps,
-            fitted_points(rounds.classification, experiments),
-            static_sigma(static), noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
+            rounds.parameters, data, experiments.steps, fitted_points(rounds.classification, experiments),
+            static_sigma(static, data), noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
             fit_curvature=fit_c, fit_slope=slope,
             curvature_fallback_Pa=float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics=n_harmonics,
             curvature_from_static=stress_terms >= 3)
@@ -184,10 +199,10 @@ def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiment
     return rounds
 
 
-def _static_chi2(static: StaticFitResult) -> float:
-    """The static points' chi-square at the static fit (the two-stage result's), with the joint fit's weight."""
+def _static_chi2(static: StaticFitResult, data: StaticData | None) -> float:
+    """The static points' chi-square at the static fit (the two-stage result's), with the joint fit's weights."""
     r = np.asarray(static.residuals_m, float)
-    return float(np.sum((r / static_sigma(static)) ** 2))
+    return float(np.sum((r / static_sigma(static, data)) ** 2))
 
 
 def _static_excess_limit(n_points: int) -> float:

@@ -153,7 +153,7 @@ class IdentificationResult:
         return {"names": list(joint.names), "values": [float(v) for v in joint.statistics.values],
                 "log_parameters": [n in ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s") for n in joint.names],
                 "matrix": (jac.T @ jac).tolist(), "variance_factor": float(joint.cost / max(joint.dof, 1)),
-                "dof": int(joint.dof), "static_sigma_m": float(joint.sigmas.get("static_m", float("nan"))),
+                "dof": int(joint.dof), "static_sigma_m": float(np.median(joint.sigmas.get("static_m", float("nan")))),
                 "laser_noise_m": float(np.median(step_s)) if step_s else None,
                 "rms_sigma_m_median": float(np.median(rms_s)) if rms_s else None,
                 "mass_kg": float(self.parameters.mass_kg),

@@ -281,7 +281,9 @@ def static_points(params: MembraneParameters, laser: LaserReadings, masses_kg, v
         volts.append(float(u))
         disp.append(float(d))
     disp = np.array([laser.mean_of(d, samples) for d in disp])
-    return StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static")
+    per_sample = math.hypot(laser.noise_m, laser.quantisation_m / math.sqrt(12.0))
+    std = np.full(disp.size, per_sample / math.sqrt(samples)) if per_sample > 0 else None
+    return StaticData(np.asarray(masses), np.asarray(volts), disp, source="synthetic static", std_error_m=std)
 
 
 def _sines(params: MembraneParameters, laser: LaserReadings, freqs: np.ndarray, offsets: tuple, amplitude_V: float,

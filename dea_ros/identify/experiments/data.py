@@ -42,6 +42,9 @@ class StaticData:
     #: per point, the RMS of its samples about their linear trend over the measurement window (m), where
     #: the samples were recorded (a bag): the laser noise alone when the membrane was at rest; None otherwise
     motion_rms_m: np.ndarray | None = None
+    #: per point, the standard uncertainty of its mean displacement (m): the laser noise over the square root
+    #: of the samples averaged, where known (a bag, synthetic data); NaN or None where not (a table)
+    std_error_m: np.ndarray | None = None
 
     def __post_init__(self):
         src = self.source
@@ -60,6 +63,18 @@ class StaticData:
             motion = np.asarray(self.motion_rms_m, float)
             check_lengths(src, displacement_m=d, motion_rms_m=motion)
             object.__setattr__(self, "motion_rms_m", motion)
+        if self.std_error_m is not None:
+            std = np.asarray(self.std_error_m, float)
+            check_lengths(src, displacement_m=d, std_error_m=std)
+            if np.any(std <= 0.0):
+                raise ExperimentError(f"{src}: std_error_m must be > 0 m (NaN where unknown)")
+            object.__setattr__(self, "std_error_m", std)
+
+    @property
+    def stated_std_m(self) -> np.ndarray | None:
+        """Every point's standard uncertainty (m) when each one states it, else None."""
+        std = self.std_error_m
+        return None if std is None or not np.all(np.isfinite(std)) else std
 
     @property
     def n_points(self) -> int:
@@ -426,16 +441,20 @@ class ExperimentSet:
         """All static points merged into one table (None when there are none)."""
         if not self.static:
             return None
-        motion = None
-        if any(s.motion_rms_m is not None for s in self.static):
-            motion = np.concatenate([s.motion_rms_m if s.motion_rms_m is not None else np.full(s.n_points, np.nan)
-                                     for s in self.static])
+
+        def merged(name):
+            if all(getattr(s, name) is None for s in self.static):
+                return None
+            return np.concatenate([getattr(s, name) if getattr(s, name) is not None else np.full(s.n_points, np.nan)
+                                   for s in self.static])
+
         return StaticData(
             np.concatenate([s.mass_kg for s in self.static]),
             np.concatenate([s.voltage_V for s in self.static]),
             np.concatenate([s.displacement_m for s in self.static]),
             source=", ".join(s.source for s in self.static),
-            motion_rms_m=motion,
+            motion_rms_m=merged("motion_rms_m"),
+            std_error_m=merged("std_error_m"),
         )
 
     def summary(self) -> str:

@@ -438,10 +438,18 @@ def _joint_fit_lines(jt) -> list:
             f"chi-square {_fmt(jt.cost)} for {jt.dof} degrees of freedom ({blocks}); fitted records: "
             + ", ".join(f"{pt.frequency_Hz:g} Hz ({pt.kind})" for pt in jt.frequency_points)
             + f"; {jt.n_evaluations} evaluations, {_fmt(jt.wall_time_s, 3)} s. Weights: static points "
-            f"{_fmt(jt.sigmas['static_m'] * 1e6)} um (static fit residual), step samples "
+            + _static_weights_text(jt.sigmas["static_m"]) + ", step samples "
             + ", ".join(_fmt(x * 1e6) for x in jt.sigmas["step_m"]) + " um (laser noise), RMS values their "
             "stated uncertainty. Stress combinations in s = lambda_r^2.", "",
             _stats_table(jt.statistics)]
+
+
+def _static_weights_text(static_m) -> str:
+    if np.ndim(static_m) == 0:
+        return f"{_fmt(static_m * 1e6)} um (static fit residual)"
+    sig = np.asarray(static_m, float) * 1e6
+    return (f"{_fmt(sig.min())}-{_fmt(sig.max())} um (each point's laser noise over the square root of its "
+            "samples, scaled up where the static fit's residuals scatter more)")
 
 
 def _two_stage_linearisation_lines(lin) -> list:
