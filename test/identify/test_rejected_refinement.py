@@ -12,6 +12,7 @@ forward integration of the held voltage from rest through the bag extraction (``
 import numpy as np
 import pytest
 
+from dea_ros.identify import refinement
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.report.markdown import fits_section
 from dea_ros.identify.synth import DEFAULT_STATIC_MASSES_KG
@@ -31,13 +32,14 @@ def truth(name: str) -> float:
     return F05.relative_permittivity if name == "eps_r" else getattr(F05, name)
 
 
-def test_the_two_stage_result_of_a_rejected_refinement_has_intervals_with_the_static_stage_in_them():
+def test_the_two_stage_result_of_a_rejected_refinement_has_intervals_with_the_static_stage_in_them(monkeypatch):
     exp, _rec = rig_experiments(F05, rig_protocol(F05, FREQUENCIES_HZ), seed=NOISE_SEED,
                                 other_masses_kg=DEFAULT_STATIC_MASSES_KG, quantisation_m=LASER_QUANTISATION_M)
+    # Whether the refinement leaves the static points depends on its path (numpy/scipy versions): here every
+    # refinement counts as having left them, so the two-stage result is reported, as it was on this data.
+    monkeypatch.setattr(refinement, "_left_the_static_points", lambda joint, start_chi2, static: True)
     res = identify(exp, evaluate_fit=False)
     rejected = [w for w in res.warnings if "the two-stage result is reported" in w]
-    # the premise (if a change of the fit's path no longer leaves the static points here, this test needs a
-    # case that does): the refinement was rejected, the two-stage result reported
     assert rejected and res.joint is None, res.warnings
     assert "linearised there (every parameter free" in rejected[0]
     lin = res.two_stage_linearisation
