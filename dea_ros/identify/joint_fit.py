@@ -10,7 +10,9 @@ chi-square over all the data,
             + sum_sines ((d_rms,model - d_rms)/sigma_rms)^2,
 
 over theta = (sigma_h(1), sigma_h'(1)[, sigma_h''(1)], eps_r, ln k1, ln eta1, ln eta2), with
-s_static the residual standard deviation of the static fit, sigma the laser noise (the
+s_static each static point's standard uncertainty where the data state it (the laser noise over the
+square root of its samples, scaled up where the static fit's residuals scatter more), else the residual
+standard deviation of the static fit (:func:`~.refinement.static_sigma`), sigma the laser noise (the
 manifest's ``sensor_noise_m`` or the estimate from each record) and sigma_rms the stated
 uncertainty of each RMS value (``d_rms_std_m``; otherwise estimated from the residuals). The
 stress combinations are those of eq. 10 with derivatives in s = lambda^2 (the static fit's
