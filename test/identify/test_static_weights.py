@@ -36,8 +36,8 @@ def _points(samples_per_point, seed=3, scale=1.0):
     rng = np.random.default_rng(seed)
     laser = LaserReadings(1e-6, 0.0, rng)
     parts = [static_points(F05, laser, [m], (), n) for m, n in zip((0.002, 0.004, 0.006), samples_per_point[:3])]
-    parts += [static_points(F05, laser, (), [u], n) for u, n in zip((1000.0, 1500.0, 2000.0, 2500.0),
-                                                                     samples_per_point[3:])]
+    voltages_V = (1000.0, 1500.0, 2000.0, 2500.0)
+    parts += [static_points(F05, laser, (), [u], n) for u, n in zip(voltages_V, samples_per_point[3:])]
     data = StaticData(np.concatenate([p.mass_kg for p in parts]), np.concatenate([p.voltage_V for p in parts]),
                       np.concatenate([p.displacement_m for p in parts]), "test static",
                       std_error_m=scale * np.concatenate([p.std_error_m for p in parts]))
