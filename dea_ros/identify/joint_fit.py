@@ -64,7 +64,7 @@ from ..errors import JointFitError
 
 LOG = logging.getLogger("dea_ros.identify")
 
-__all__ = ["JointFitResult", "JointObjective", "fit_joint", "linearise_joint", "JointFitError",
+__all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError",
            "CURVATURE_REL_CI_LIMIT", "JOINT_NAMES", "CURVATURE_BOUND_PA"]
 
 #: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
@@ -302,6 +302,7 @@ def fit_joint(
     curvature_rel_ci_limit: float = CURVATURE_REL_CI_LIMIT,
     progress: Callable[[dict], None] | None = None,
     curvature_from_static: bool = False,
+    minimise: bool = True,
 ) -> JointFitResult:
     """Refine all identifiable parameters jointly (module docstring), starting from ``start``.
 
@@ -312,6 +313,14 @@ def fit_joint(
     the value the caller will write when it is not identified (reported only). ``curvature_from_static``:
     the static points determine sigma_h''(1) (:func:`~.static_fit.static_curvature_test`), so the curvature
     terms are fitted even without sine records (held, they would bias the others).
+
+    ``minimise`` False: the objective evaluated at ``start``, not minimised -- its residuals, Jacobian and
+    linearised statistics there, every parameter free. For a start that is not refined (the refinement
+    rejected, :func:`~.refinement.refine_jointly`): the two-stage result's intervals with the static stage's
+    uncertainty in them. The dynamic fit's intervals hold eps_r and the stress combinations at the static fit's
+    values (a conditional covariance): with 17 sine frequencies they can be 100 times too narrow (the coverage
+    family's F05, 17 frequencies: k1 0.21 % off at z +67). s^2 = chi^2 / dof at the start, above the optimum's:
+    wider, not narrower, than at a minimum.
     """
     t0 = time.perf_counter()
     points = list(points)
@@ -331,19 +340,26 @@ def fit_joint(
 
     objective = objective_from(start, point_s)
     lo, hi = objective.bounds()
+
+    def solve(obj: JointObjective):
+        if minimise:
+            return _least_squares(obj, lo, hi, max_evaluations, progress)
+        return _NotMinimised(np.clip(obj.theta0(), lo + 1e-9, hi - 1e-9))
+
     try:
-        sol = _least_squares(objective, lo, hi, max_evaluations, progress)
+        sol = solve(objective)
         if estimated_rms_sigma and points:
             # no stated uncertainty of the RMS values: their scatter about the fit estimates it
             sig = _scatter_sigma(objective, sol.x, point_s)
             point_s = [s if p.measured_std_m is None else p.measured_std_m for s, p in
                        zip([sig] * len(points), points)]
             objective = objective_from(objective.parameters(sol.x), point_s)
-            sol = _least_squares(objective, lo, hi, max_evaluations, progress)
+            sol = solve(objective)
             warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
-                            f"scatter about the fit, {sig * 1e6:.3g} um")
+                            f"scatter about the {'fit' if minimise else 'start'}, {sig * 1e6:.3g} um")
     except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
-        raise JointFitError(f"joint refinement failed: {exc}") from None
+        raise JointFitError(f"joint refinement failed: {exc}" if minimise else
+                            f"the joint objective does not evaluate at the start: {exc}") from None
     sigmas = {"static_m": _static_sigma_value(static_sigma_m), "step_m": list(step_s),
               "rms_m": [float(s) for s in point_s]}
     return _joint_result(objective, sol, lo, hi, sigmas, warnings, curvature_fallback_Pa, curvature_rel_ci_limit, t0)
@@ -351,66 +367,11 @@ def fit_joint(
 
 @dataclass
 class _NotMinimised:
-    """The point :func:`linearise_joint` evaluates, in the shape of scipy's least-squares result."""
+    """The start :func:`fit_joint` evaluates without minimising, in the shape of scipy's least-squares result."""
 
     x: np.ndarray
     success: bool = True
     message: str = "evaluated at the start, not minimised"
-
-
-def linearise_joint(
-    start: MembraneParameters,
-    static: StaticData | None,
-    steps: Sequence[StepData],
-    points: Sequence[FrequencyPoint],
-    static_sigma_m,
-    noise_m: float | None = None,
-    prior_beta_gamma=None,
-    fit_curvature: bool = True,
-    fit_slope: bool = True,
-    curvature_fallback_Pa: float | None = None,
-    n_harmonics: int = 8,
-    curvature_rel_ci_limit: float = CURVATURE_REL_CI_LIMIT,
-    curvature_from_static: bool = False,
-) -> JointFitResult:
-    """The objective of :func:`fit_joint` (same arguments) evaluated at ``start``, not minimised: its residuals,
-    Jacobian and linearised statistics there, every parameter free.
-
-    For a start that is not refined (the refinement rejected, :func:`~.refinement.refine_jointly`): the
-    two-stage result's intervals with the static stage's uncertainty in them. The dynamic fit's intervals hold
-    eps_r and the stress combinations at the static fit's values (a conditional covariance): with 17 sine
-    frequencies they can be 100 times too narrow (the coverage family's F05, 17 frequencies: k1 0.21 % off at
-    z +67). s^2 = chi^2 / dof at the start, above the optimum's: wider, not narrower, than at a minimum.
-    """
-    t0 = time.perf_counter()
-    points = list(points)
-    if not steps and not points:
-        raise JointFitError("joint refinement needs a step or sine experiment")
-    step_s, point_s = _sigmas(None, steps, points, noise_m)
-    if not points and not curvature_from_static:
-        fit_curvature = False
-
-    def objective_from(rms_sigmas) -> JointObjective:
-        return JointObjective(start, static, steps, points, static_sigma_m, step_s, rms_sigmas, prior_beta_gamma,
-                              fit_curvature, n_harmonics, fit_slope)
-
-    warnings = []
-    try:
-        objective = objective_from([s if s is not None else 1e-7 for s in point_s])
-        lo, hi = objective.bounds()
-        x = np.clip(objective.theta0(), lo + 1e-9, hi - 1e-9)
-        if points and any(s is None for s in point_s):
-            sig = _scatter_sigma(objective, x, point_s)
-            point_s = [sig if s is None else s for s in point_s]
-            objective = objective_from(point_s)
-            warnings.append(f"the RMS values have no stated uncertainty (column d_rms_std_m): weighted by their "
-                            f"scatter about the start, {sig * 1e6:.3g} um")
-        sigmas = {"static_m": _static_sigma_value(static_sigma_m), "step_m": list(step_s),
-                  "rms_m": [float(s) for s in point_s]}
-        return _joint_result(objective, _NotMinimised(x), lo, hi, sigmas, warnings, curvature_fallback_Pa,
-                             curvature_rel_ci_limit, t0)
-    except (HarmonicBalanceError, TransientError, NoEquilibriumError, FloatingPointError) as exc:
-        raise JointFitError(f"the joint objective does not evaluate at the start: {exc}") from None
 
 
 def _static_sigma_value(static_sigma_m):

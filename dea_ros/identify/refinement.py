@@ -27,7 +27,7 @@ from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points, leave_out_for_a_round
 from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
 from .experiments import ExperimentSet, StaticData
-from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint, linearise_joint
+from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
 from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
 __all__ = ["JointRounds", "CurvatureDecision", "refine_jointly", "decide_curvature", "static_sigma",
@@ -45,8 +45,9 @@ class JointRounds:
     classification_s: float = 0.0       # time spent classifying again
     warnings: list = field(default_factory=list)
     #: joint None (the refinement rejected or failed): the joint objective linearised at the two-stage result
-    #: (:func:`~.joint_fit.linearise_joint`), whose statistics are the reported intervals; None if it does
-    #: not evaluate there (the dynamic fit's intervals, conditional on the static stage, are reported)
+    #: (:func:`~.joint_fit.fit_joint` with ``minimise`` False), whose statistics are the reported intervals;
+    #: None if it does not evaluate there (the dynamic fit's intervals, conditional on the static stage, are
+    #: reported)
     two_stage_linearisation: JointFitResult | None = None
 
 
@@ -106,13 +107,15 @@ def curvature_fallback(static: StaticFitResult | None, params: MembraneParameter
 
 def _joint_fit(start: MembraneParameters, static: StaticFitResult, experiments: ExperimentSet, points: list,
                fit_curvature, stress_terms: int, fallback_Pa: float, n_harmonics: int, progress,
-               fit_slope: bool) -> JointFitResult:
-    """:func:`fit_joint` on all the data with the static fit's weight and prior."""
+               fit_slope: bool, minimise: bool = True) -> JointFitResult:
+    """:func:`fit_joint` on all the data with the static fit's weights and prior (``minimise`` False: evaluated
+    at ``start``, not minimised)."""
     data = experiments.all_static()
     return fit_joint(start, data, experiments.steps, points, static_sigma(static, data),
                      noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
                      fit_curvature=fit_curvature, fit_slope=fit_slope, curvature_fallback_Pa=fallback_Pa,
-                     n_harmonics=n_harmonics, progress=progress, curvature_from_static=stress_terms >= 3)
+                     n_harmonics=n_harmonics, progress=progress, curvature_from_static=stress_terms >= 3,
+                     minimise=minimise)
 
 
 def refine_jointly(params: MembraneParameters, static: StaticFitResult, classification: list,
@@ -183,13 +186,9 @@ def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiment
                         reason: str = "") -> JointRounds:
     """``rounds`` without a refinement, with the joint objective linearised at its parameters (reported)."""
     try:
-        data = experiments.all_static()
-        rounds.two_stage_linearisation = linearise_joint(
-            rounds.parameters, data, experiments.steps, fitted_points(rounds.classification, experiments),
-            static_sigma(static, data), noise_m=experiments.sensor_noise_m, prior_beta_gamma=static.prior_beta_gamma,
-            fit_curvature=fit_c, fit_slope=slope,
-            curvature_fallback_Pa=float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics=n_harmonics,
-            curvature_from_static=stress_terms >= 3)
+        rounds.two_stage_linearisation = _joint_fit(
+            rounds.parameters, static, experiments, fitted_points(rounds.classification, experiments), fit_c,
+            stress_terms, float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics, None, slope, minimise=False)
         note = ("its intervals are those of the joint objective linearised there (every parameter free, the static "
                 "stage's uncertainty included)")
     except JointFitError as exc:

@@ -47,7 +47,8 @@ class IdentificationResult:
     joint: JointFitResult | None = None
     classification: list = field(default_factory=list)   # one entry per sine record (see classify_records)
     #: no joint refinement (rejected or failed): the joint objective linearised at the reported two-stage
-    #: result (:func:`~dea_ros.identify.joint_fit.linearise_joint`); its statistics are the reported intervals
+    #: result (:func:`~dea_ros.identify.joint_fit.fit_joint`, ``minimise`` False); its statistics are the
+    #: reported intervals
     two_stage_linearisation: JointFitResult | None = None
     #: sigma_h''(1): True identified (written), False not identified (base value written), None not fitted
     curvature_identified: bool | None = None

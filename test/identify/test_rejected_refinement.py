@@ -6,9 +6,9 @@ hold eps_r and the stress combinations at the static fit's values: a conditional
 with 17 sine frequencies. The case: F05 of the coverage family (bench/bench_coverage_family.py; creep 7.38 s,
 resonance 8.97 Hz), 17 frequencies, noise seed 1517422253 (session 19's family, run 2 of F05): k1 0.21 % off
 at z +67, eta1 at z -3.0, eta2 at z -2.2, eps_r without an interval. The intervals are now the joint objective's
-linearised at the two-stage result (``joint_fit.linearise_joint``: every parameter free). Data by converged
-forward integration of the held voltage from rest through the bag extraction (``synth_rig.rig_experiments``),
-1 um laser noise, ILD1320 quantisation, never the harmonic balance the fit uses."""
+linearised at the two-stage result (``joint_fit.fit_joint`` with ``minimise`` False: every parameter free).
+Data by converged forward integration of the held voltage from rest through the bag extraction
+(``synth_rig.rig_experiments``), 1 um laser noise, ILD1320 quantisation, never the harmonic balance the fit uses."""
 import numpy as np
 import pytest
 
