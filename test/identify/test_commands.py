@@ -60,7 +60,8 @@ def test_identify_bad_data_exits_2_with_the_location(synthetic, tmp_path, capsys
     shutil.copytree(synthetic("A2")[0], folder)
     static = folder / "static.csv"
     lines = static.read_text().splitlines()
-    lines[3] = "0.003,nan,0.0007"
+    cells = lines[3].split(",")
+    lines[3] = ",".join([cells[0], "nan"] + cells[2:])
     static.write_text("\n".join(lines) + "\n")
     rc = main(["identify", str(folder), "--out", str(tmp_path / "o"), "--quiet"])
     err = capsys.readouterr().err

@@ -161,11 +161,13 @@ def test_inconsistent_row_length_and_non_numbers(synthetic, tmp_path):
     static = folder / "static.csv"
     lines = static.read_text().splitlines()
     k = _data_start(lines) + 2
-    lines[k] = ",".join(lines[k].split(",")[:2])
+    row = lines[k].split(",")
+    columns = len(row)                        # mass, voltage, displacement (and its uncertainty, synthetic data)
+    lines[k] = ",".join(row[:2])
     static.write_text("\n".join(lines) + "\n")
-    with pytest.raises(ExperimentError, match=rf"static.csv line {k + 1}: 2 field\(s\), the header has 3"):
+    with pytest.raises(ExperimentError, match=rf"static.csv line {k + 1}: 2 field\(s\), the header has {columns}"):
         load_experiment_set(folder)
-    lines[k] = "0.003,abc,0.0007"
+    lines[k] = ",".join(["0.003", "abc"] + row[2:])
     static.write_text("\n".join(lines) + "\n")
     with pytest.raises(ExperimentError, match=rf"line {k + 1}, column 'voltage_V': 'abc' is not a number"):
         load_experiment_set(folder)

@@ -16,7 +16,8 @@ import pytest
 from scipy import stats as scipy_stats
 
 from dea_ros.identify.bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
-from dea_ros.identify.experiments import StaticData
+from dea_ros.errors import ExperimentError
+from dea_ros.identify.experiments import StaticData, load_experiment_set, write_experiment_set
 from dea_ros.identify.protocols import Protocol
 from dea_ros.identify.refinement import static_sigma
 from dea_ros.identify.static_fit import fit_static
@@ -45,23 +46,43 @@ def _points(samples_per_point, seed=3, scale=1.0):
         "prestretch", "thickness_m", "plate_radius_m", "electrode_width_m", "mass_kg")}))
 
 
-def test_synthetic_and_recorded_points_state_the_noise_over_the_root_of_their_samples():
-    laser = LaserReadings(1e-6, 0.0, np.random.default_rng(1))
-    pts = static_points(F05, laser, (0.002, 0.004), (2000.0,), 400)
-    assert np.allclose(pts.std_error_m, 1e-6 / 20.0)
-    # the bag extraction: the run's laser noise over the square root of each window's samples (1 s at 500 Hz)
+def _recorded_staircase():
+    """The mock membrane's staircase as the rig records it, cut by the bag extraction (1 s windows at 500 Hz)."""
     protocol = Protocol.from_dict({"name": "staircase", "membrane": "A2", "mass_kg": 0.003, "segments": [
         {"kind": "static", "voltages_V": [0, 2000, 2500, 0], "hold_s": 10.0, "measure_s": 1.0}]})
     rec = record_protocol(MOCK, protocol, 2, 1e-6, LASER_QUANTISATION_M, 500.0, True)
     t = rec.time_s + T0_NS * 1e-9
     meta = {pass_metadata_name(1): experiment_record(protocol, rec.segments, T0_NS, len(rec.segments), False,
                                                      500.0, MOCK.name)}
-    exp = experiments_from_signals(BagSignals(t, rec.voltage_V, t.copy(), rec.displacement_measured_m, meta),
-                                   "staircase", membrane="A2")
-    std = exp.all_static().std_error_m
+    return experiments_from_signals(BagSignals(t, rec.voltage_V, t.copy(), rec.displacement_measured_m, meta),
+                                    "staircase", membrane="A2")
+
+
+def test_synthetic_and_recorded_points_state_the_noise_over_the_root_of_their_samples():
+    laser = LaserReadings(1e-6, 0.0, np.random.default_rng(1))
+    pts = static_points(F05, laser, (0.002, 0.004), (2000.0,), 400)
+    assert np.allclose(pts.std_error_m, 1e-6 / 20.0)
+    # the bag extraction: the run's laser noise over the square root of each window's samples
+    std = _recorded_staircase().all_static().std_error_m
     per_sample = math.hypot(1e-6, LASER_QUANTISATION_M / math.sqrt(12.0))
     assert std.shape == (4,)
     assert np.all(np.abs(std * math.sqrt(500.0) / per_sample - 1.0) < 0.15), std   # the noise estimate's spread
+
+
+def test_an_experiment_folder_keeps_the_points_uncertainties(tmp_path):
+    exp = _recorded_staircase()
+    folder = tmp_path / "exp"
+    write_experiment_set(exp, folder)
+    static_csv = next(folder.glob("static*.csv"))
+    assert "displacement_std_m" in static_csv.read_text()
+    back = load_experiment_set(folder)
+    assert np.allclose(back.all_static().std_error_m, exp.all_static().std_error_m, rtol=1e-9)
+    # a zero uncertainty is refused, naming the column and the fix
+    lines = static_csv.read_text().splitlines()
+    last = lines[-1].split(",")
+    static_csv.write_text("\n".join(lines[:-1] + [",".join(last[:-1] + ["0"])]) + "\n")
+    with pytest.raises(ExperimentError, match="displacement_std_m.*> 0 m"):
+        load_experiment_set(folder)
 
 
 def test_each_point_is_weighted_with_its_own_uncertainty_when_the_residuals_agree_with_them():

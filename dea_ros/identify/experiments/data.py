@@ -67,7 +67,8 @@ class StaticData:
             std = np.asarray(self.std_error_m, float)
             check_lengths(src, displacement_m=d, std_error_m=std)
             if np.any(std <= 0.0):
-                raise ExperimentError(f"{src}: std_error_m must be > 0 m (NaN where unknown)")
+                raise ExperimentError(f"{src}: std_error_m (CSV column displacement_std_m) must be > 0 m: the "
+                                      "standard uncertainty of each point's mean; leave the column out where unknown")
             object.__setattr__(self, "std_error_m", std)
 
     @property

@@ -26,7 +26,9 @@ One folder per data set::
     sensor_noise_m: 1.0e-06      # optional: laser noise sigma (otherwise estimated)
     units: {time: s, voltage: V, displacement: m, mass: kg, frequency: Hz}
     experiments:
-      - kind: static             # columns mass_kg, voltage_V, displacement_m (one row per point)
+      - kind: static             # columns mass_kg, voltage_V, displacement_m[, displacement_std_m] (one row
+                                 #   per point; displacement_std_m: the standard uncertainty of the point's
+                                 #   mean, the joint fit's weight of it)
         file: static.csv
       - kind: step               # columns time_s, voltage_V, displacement_m (sampled)
         file: step_2200V.csv
@@ -67,7 +69,7 @@ from .checks import check_displacement, check_mass, check_time, check_voltage
 from .csv_io import read_csv_columns, write_csv_columns
 from .data import GEOMETRY_FIELDS, WAVEFORMS, ExperimentSet, SineData, SineSeries, StaticData, StepData
 
-__all__ = ["FORMAT", "KINDS", "STATIC_COLUMNS", "STEP_COLUMNS", "SINE_COLUMNS", "SINE_OPTIONAL",
+__all__ = ["FORMAT", "KINDS", "STATIC_COLUMNS", "STATIC_OPTIONAL", "STEP_COLUMNS", "SINE_COLUMNS", "SINE_OPTIONAL",
            "load_experiment_set", "write_experiment_set"]
 
 FORMAT = "dea_ros.experiments/1"
@@ -79,6 +81,7 @@ _FIELDS = {"format", "membrane", "parameters", "geometry", "mass_kg", "sensor_no
 
 #: Columns of each file type (sampled sine records have the columns of a step).
 STATIC_COLUMNS = ("mass_kg", "voltage_V", "displacement_m")
+STATIC_OPTIONAL = ("displacement_std_m",)
 STEP_COLUMNS = ("time_s", "voltage_V", "displacement_m")
 SINE_COLUMNS = ("frequency_Hz", "amplitude_V", "d_rms_m")
 SINE_OPTIONAL = ("d0_m", "d_rms_std_m")
@@ -150,12 +153,13 @@ def _geometry(data: Mapping, base: MembraneParameters | None, manifest: Path) ->
 
 
 def _static_from(path: Path) -> StaticData:
-    cols = read_csv_columns(path, STATIC_COLUMNS)
+    cols = read_csv_columns(path, STATIC_COLUMNS, STATIC_OPTIONAL)
     lines = cols["_lines"]
     check_mass(cols["mass_kg"], "mass_kg", str(path), lines)
     check_voltage(cols["voltage_V"], "voltage_V", str(path), lines)
     check_displacement(cols["displacement_m"], "displacement_m", str(path), lines)
-    return StaticData(cols["mass_kg"], cols["voltage_V"], cols["displacement_m"], str(path))
+    return StaticData(cols["mass_kg"], cols["voltage_V"], cols["displacement_m"], str(path),
+                      std_error_m=cols.get("displacement_std_m"))
 
 
 def _step_from(path: Path, entry: Mapping, mass_kg) -> StepData:
@@ -261,9 +265,12 @@ def _write_static(experiments: ExperimentSet, folder: Path) -> list:
     entries = []
     for k, s in enumerate(experiments.static):
         name = "static.csv" if len(experiments.static) == 1 else f"static_{k}.csv"
-        write_csv_columns(folder / name, {"mass_kg": s.mass_kg, "voltage_V": s.voltage_V,
-                                          "displacement_m": s.displacement_m},
-                          comment="static points: rest displacement for a mass and a constant voltage (eq. 20)")
+        cols = {"mass_kg": s.mass_kg, "voltage_V": s.voltage_V, "displacement_m": s.displacement_m}
+        if s.stated_std_m is not None:
+            cols["displacement_std_m"] = s.stated_std_m
+        write_csv_columns(folder / name, cols,
+                          comment="static points: rest displacement for a mass and a constant voltage (eq. 20); "
+                                  "displacement_std_m: the standard uncertainty of each mean (optional)")
         entries.append({"kind": "static", "file": name})
     return entries
 
