@@ -132,7 +132,8 @@ class JointObjective:
         self.static = static
         self.steps = list(steps)
         self.points = list(points)
-        self.static_sigma = np.asarray(static_sigma_m, float)     # one value, or one per static point
+        sigma = np.asarray(static_sigma_m, float)                  # one value, or one per static point
+        self.static_sigma = sigma if static is None else np.broadcast_to(sigma, (static.n_points,))
         self.step_sigmas = np.asarray(step_sigmas_m, float)
         self.point_sigmas = np.asarray(point_sigmas_m, float)
         self.n_harmonics = int(n_harmonics)
@@ -208,7 +209,7 @@ class JointObjective:
             block[:, q] = jac7[:, 6]
             r = (d - self.static.displacement_m) / self.static_sigma
             res.append(r)
-            rows.append(block / (self.static_sigma[:, None] if self.static_sigma.ndim else self.static_sigma))
+            rows.append(block / self.static_sigma[:, None])
             details["static_predicted_m"] = d
             details["blocks"]["static"] = float(r @ r)
         # -- steps (eq. 23)
