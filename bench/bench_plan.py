@@ -20,8 +20,23 @@ Per parameter (eps_r, k1, eta1, eta2, sigma_h''(1)): relative error, relative 95
 whether the interval covers the truth; the eta1/eta2 correlation; sigma_h''(1) identified within
 10 %; the experiment time of both protocols.
 
-Run: python bench/bench_plan.py [--membranes 3] [--seeds 2] [--jsonl bench/results/plan.jsonl]
-(appends one JSON line per run; --table-only tabulates).
+``--data held`` (session 20; the default): the runs as the rig records them and as identifier_node's
+``adaptive: true`` protocol runs them, on the data of the coverage family (bench_coverage_family
+``--data held``: synth_rig's held-voltage run from rest through the bag extraction, settle times from the
+membrane, static points at the family's other masses, each run's noise seed from (member, seed)):
+
+* one pass: ``rig_protocol`` with the 17 frequencies (the family's 17-frequency run, same noise);
+* two passes: ``rig_protocol`` with the paper's 4 (the family's paper run, same noise), identified; then
+  ``identify.adaptive.plan_second_pass`` (the node's planner: offsets allowed, records as long as the first
+  pass's, no voltage above its peak) with ``adaptive_budget_s`` = the one-pass protocol's duration - the
+  first pass's, and ``adaptive_max_settle_s`` = the longest hold of the first pass; the planned protocol
+  recorded the same way from rest (its own noise seed) and both passes cut as identifier_node's bag
+  (``synth_rig.passes_experiments``: two metadata records, each pass with its own t0) and identified.
+
+``--data orbit``: sessions 9-19's runs (synth.synthesize_experiments, the list above).
+
+Run: python bench/bench_plan.py [--membranes 3] [--seeds 2] [--members F00,F01] [--data held]
+[--jsonl bench/results/plan.jsonl] (appends one JSON line per run; --table-only tabulates).
 """
 from __future__ import annotations
 
@@ -39,13 +54,16 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench_coverage_family import PAPER_HZ, family, seventeen, truth  # noqa: E402
+from bench_coverage_family import PAPER_HZ, family, noise_seed, seventeen, truth  # noqa: E402
 from machine_info import machine  # noqa: E402
 
+from dea_ros.errors import IntegrationError, PlanningError  # noqa: E402
+from dea_ros.identify.adaptive import plan_second_pass  # noqa: E402
 from dea_ros.identify.pipeline import identify  # noqa: E402
 from dea_ros.identify.planning import (PlanLimits, first_fit_from_result, plan_experiments,  # noqa: E402
                                        sine_record_cost, step_rest_s)
-from dea_ros.identify.synth import synthesize_experiments  # noqa: E402
+from dea_ros.identify.synth import DEFAULT_STATIC_MASSES_KG, synthesize_experiments  # noqa: E402
+from dea_ros.identify.synth_rig import RecordedPass, passes_experiments, record_protocol, rig_protocol  # noqa: E402
 from dea_ros.sim.plant import LASER_QUANTISATION_M  # noqa: E402
 
 NAMES = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
@@ -119,6 +137,61 @@ def one_run(p, f_r: float, seed: int) -> dict:
             "wall_s": {"one_pass": t1 - t0, "first_and_plan": t2 - t1, "second": t3 - t2}}
 
 
+#: 0 V between the passes (s): the first fit and the plan, as in the node (not recorded; pass 2 from rest)
+GAP_S = 30.0
+
+
+def _hold_s(protocol) -> float:
+    """The longest settle/hold of a protocol's segments (s)."""
+    return max(float(seg.get(k, 0.0)) for seg in protocol.raw_segments for k in ("settle_s", "hold_s"))
+
+
+def one_run_held(p, f_r: float, seed: int) -> dict:
+    """One pass against two as identifier_node runs them (module docstring, ``--data held``)."""
+    run_seed = noise_seed(p.name, seed)
+    kw = {"noise_m": 1e-6, "quantisation_m": LASER_QUANTISATION_M}
+    others = {"other_masses_kg": DEFAULT_STATIC_MASSES_KG}
+    base = {"membrane": p.name, "seed": seed, "data": "held", "noise_seed": run_seed, "creep_s": p.eta1_Pa_s / p.k1_Pa,
+            "f_r_Hz": f_r, "sigma2_true_Pa": truth(p, "sigma_h''(1)_Pa")}
+    one_proto = rig_protocol(p, seventeen(f_r))
+    paper_proto = rig_protocol(p, PAPER_HZ)
+    budget = one_proto.duration_s() - paper_proto.duration_s()
+    first_proto = dataclasses.replace(paper_proto, adaptive=True, adaptive_budget_s=budget,
+                                      adaptive_max_settle_s=_hold_s(paper_proto))
+    t0 = time.perf_counter()
+    try:
+        one_rec = record_protocol(p, one_proto, run_seed, **kw)
+        first_rec = record_protocol(p, first_proto, run_seed, **kw)
+    except IntegrationError as exc:         # no converged data (bench_coverage_family counts these too)
+        return {**base, "error": str(exc)}
+    one = identify(passes_experiments(p, [RecordedPass(one_proto, one_rec)], run_seed, **kw, **others),
+                   evaluate_fit=False)
+    t1 = time.perf_counter()
+    first_pass = RecordedPass(first_proto, first_rec)
+    first = identify(passes_experiments(p, [first_pass], run_seed, **kw, **others), evaluate_fit=False)
+    try:
+        second = plan_second_pass(first, first_proto)
+    except PlanningError as exc:
+        return {**base, "error": f"plan: {exc}", "one": _summary(p, one, one_proto.duration_s())}
+    t2 = time.perf_counter()
+    start2 = first_rec.segments[-1].end_s + GAP_S
+    try:
+        rec2 = record_protocol(p, second.protocol, noise_seed(p.name, seed + 1000), **kw)
+    except IntegrationError as exc:
+        return {**base, "error": f"pass 2: {exc}", "one": _summary(p, one, one_proto.duration_s())}
+    passes = [first_pass, RecordedPass(second.protocol, rec2, start2, second.record_extra())]
+    two = identify(passes_experiments(p, passes, run_seed, **kw, **others), evaluate_fit=False)
+    t3 = time.perf_counter()
+    plan = second.plan
+    pass2_s = rec2.segments[-1].end_s
+    return {**base, "step_rest_s": step_rest_s(first.parameters),
+            "one": _summary(p, one, one_proto.duration_s()), "first": _summary(p, first, paper_proto.duration_s()),
+            "two": _summary(p, two, first_proto.duration_s() + pass2_s),
+            "plan": [pk.record.label() for pk in plan.picks], "plan_total_s": plan.total_s, "budget_s": budget,
+            "predicted_after": {n: plan.widths_after.get(n) for n in NAMES},
+            "wall_s": {"one_pass": t1 - t0, "first_and_plan": t2 - t1, "second": t3 - t2}}
+
+
 def _row(rs, key: str, n: str) -> str:
     vals = [r[key]["params"][n] for r in rs if n in r[key]["params"]]
     if not vals:
@@ -178,16 +251,22 @@ def resume_runs(path: Path, members, seeds: int, one_run) -> list:
             done.append(rec)
             with path.open("a") as fh:
                 fh.write(json.dumps(rec) + "\n")
-            print(f"{p.name} seed {seed}: plan {rec['plan']} ({rec['plan_total_s']:.0f} of "
-                  f"{rec['budget_s']:.0f} s), wall {rec['wall_s']}", file=sys.stderr, flush=True)
+            head = f"plan {rec.get('plan')} ({rec.get('plan_total_s', 0):.0f} of {rec.get('budget_s', 0):.0f} s), "
+            print(f"{p.name} seed {seed}: " + (head + f"wall {rec['wall_s']}" if "two" in rec else rec["error"]),
+                  file=sys.stderr, flush=True)
     return done
 
 
 def runs_text(done: list) -> str:
-    """The machine, the runs' count, the summary table and the per-run table."""
+    """The machine, the runs' count, the summary table and the per-run table (runs without both arms --
+    no converged data, nothing planned -- counted and named)."""
+    both = [r for r in done if "two" in r]
+    failed = [f"{r['membrane']} seed {r['seed']}: {r['error']}" for r in done if "two" not in r]
     return "\n".join([f"Machine: {machine()}; OPENBLAS_NUM_THREADS=1", "",
                       f"{len({r['membrane'] for r in done})} membranes, seeds {sorted({r['seed'] for r in done})}, "
-                      f"{len(done)} runs.", ""] + table(done) + [""] + per_run(done)) + "\n"
+                      f"{len(done)} runs, {len(both)} with both arms." + (" Without: " + "; ".join(failed) if failed
+                                                                          else ""), ""]
+                     + table(both) + [""] + per_run(both)) + "\n"
 
 
 def main() -> None:
@@ -196,9 +275,16 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--jsonl", default=str(Path(__file__).with_name("results") / "plan.jsonl"))
     ap.add_argument("--table-only", action="store_true")
+    ap.add_argument("--members", default="", help="comma-separated membrane names (default: the first --membranes)")
+    ap.add_argument("--data", default="held", choices=("held", "orbit"),
+                    help="held: the rig's runs and identifier_node's adaptive pass (module docstring); orbit: "
+                         "synth's records (sessions 9-19)")
     args = ap.parse_args()
-    members = [] if args.table_only else family(args.membranes)
-    print(runs_text(resume_runs(Path(args.jsonl), members, args.seeds, one_run)))
+    only = [m for m in args.members.split(",") if m]
+    members = [] if args.table_only else [(p, f_r) for p, f_r in family(max(args.membranes, 20 if only else 0))
+                                          if not only or p.name in only]
+    print(runs_text(resume_runs(Path(args.jsonl), members, args.seeds,
+                                one_run_held if args.data == "held" else one_run)))
 
 
 if __name__ == "__main__":

@@ -47,8 +47,8 @@ from .experiments import GEOMETRY_FIELDS
 from .protocols import Protocol, segment_at
 from .synth import LaserReadings, static_points
 
-__all__ = ["RigSettleTimes", "RigRecording", "rig_settle_times", "rig_protocol", "record_protocol",
-           "rig_experiments"]
+__all__ = ["RigSettleTimes", "RigRecording", "RecordedPass", "rig_settle_times", "rig_protocol", "record_protocol",
+           "rig_experiments", "passes_experiments"]
 
 T0_NS = 1_700_000_000_000_000_000   # the protocol's start on the (synthetic) epoch clock, ns
 
@@ -145,6 +145,18 @@ def record_protocol(params: MembraneParameters, protocol: Protocol, seed: int = 
     return RigRecording(tv, uv, d_true, laser.read(d_true), segments, shifts, check, wall)
 
 
+@dataclass(frozen=True)
+class RecordedPass:
+    """One pass of a rig run for :func:`passes_experiments`: its protocol, its recording (times from its own
+    start), its start after the first pass's (s; the time at 0 V between them is not recorded) and what its
+    metadata record adds (a planned pass's plan, :meth:`~.adaptive.SecondPass.record_extra`)."""
+
+    protocol: Protocol
+    recording: RigRecording
+    start_s: float = 0.0
+    extra: dict | None = None
+
+
 def rig_experiments(params: MembraneParameters, protocol: Protocol, seed: int = 0, noise_m: float = 1e-6,
                     quantisation_m: float = 0.0, update_rate_Hz: float = 500.0,
                     other_masses_kg: Sequence[float] = (), static_samples: int = 100,
@@ -154,10 +166,30 @@ def rig_experiments(params: MembraneParameters, protocol: Protocol, seed: int = 
     at ``other_masses_kg`` (0 V, equilibrium + the mean of ``static_samples`` laser readings: a mass swap, not
     part of the held run) are added to the staircase's."""
     rec = record_protocol(params, protocol, seed, noise_m, quantisation_m, update_rate_Hz, random_start_phase)
-    t = rec.time_s + T0_NS * 1e-9
-    meta = {pass_metadata_name(1): experiment_record(protocol, rec.segments, T0_NS, len(rec.segments), False,
-                                                     float(update_rate_Hz), params.name)}
-    signals = BagSignals(t, rec.voltage_V, t.copy(), rec.displacement_measured_m, meta)
+    exp = passes_experiments(params, [RecordedPass(protocol, rec)], seed, noise_m, quantisation_m, update_rate_Hz,
+                             other_masses_kg, static_samples)
+    return exp, rec
+
+
+def passes_experiments(params: MembraneParameters, passes: Sequence[RecordedPass], seed: int = 0,
+                       noise_m: float = 1e-6, quantisation_m: float = 0.0, update_rate_Hz: float = 500.0,
+                       other_masses_kg: Sequence[float] = (), static_samples: int = 100):
+    """The ExperimentSet of one or more recorded passes (an adaptive protocol's two) as the bag extraction
+    cuts them -- each pass's schedule in its own metadata record with its own t0, as identifier_node writes
+    them -- with :func:`rig_experiments`' geometry and the static points at ``other_masses_kg`` (their noise
+    drawn from ``seed``)."""
+    times, volts, disp, meta = [], [], [], {}
+    for number, one in enumerate(passes, 1):
+        rec = one.recording
+        t0_ns = T0_NS + int(round(one.start_s * 1e9))
+        times.append(rec.time_s + t0_ns * 1e-9)
+        volts.append(rec.voltage_V)
+        disp.append(rec.displacement_measured_m)
+        meta[pass_metadata_name(number)] = experiment_record(one.protocol, rec.segments, t0_ns, len(rec.segments),
+                                                             False, float(update_rate_Hz), params.name, number,
+                                                             one.extra)
+    t = np.concatenate(times)
+    signals = BagSignals(t, np.concatenate(volts), t.copy(), np.concatenate(disp), meta)
     exp = experiments_from_signals(signals, f"rig_synth[{params.name}, seed {seed}]", membrane="A2")
     static = list(exp.static)
     others = [m for m in other_masses_kg if abs(m - params.mass_kg) > 1e-9]
@@ -165,6 +197,5 @@ def rig_experiments(params: MembraneParameters, protocol: Protocol, seed: int = 
         rng = np.random.default_rng([seed, 1])
         static.append(static_points(params, LaserReadings(float(noise_m), float(quantisation_m), rng), others, (),
                                     static_samples))
-    exp = dataclasses.replace(exp, membrane=params.name, geometry={k: getattr(params, k) for k in GEOMETRY_FIELDS},
-                              static=static, base_parameters=None, base_reference=None)
-    return exp, rec
+    return dataclasses.replace(exp, membrane=params.name, geometry={k: getattr(params, k) for k in GEOMETRY_FIELDS},
+                               static=static, base_parameters=None, base_reference=None)
