@@ -1,6 +1,7 @@
 """Synthetic experiments as the rig records them (issue 21, session 11): the held voltage integrated from
 rest converges (halving the tolerance, and against SciPy's DOP853 restarted at every hold), and a membrane
-unlike the presets identified from one such run lies within its intervals."""
+unlike the presets identified from one such run lies within its intervals; two recorded passes (an adaptive
+protocol's) are cut each on its own time line, as from identifier_node's bag."""
 from __future__ import annotations
 
 import math
@@ -9,8 +10,10 @@ import numpy as np
 import pytest
 
 from dea_ros.identify.pipeline import identify
+from dea_ros.identify.protocols import Protocol
 from dea_ros.identify.static_fit import EXTENDED_COMBINATION_MATRIX
-from dea_ros.identify.synth_rig import record_protocol, rig_experiments, rig_protocol, rig_settle_times
+from dea_ros.identify.synth_rig import (RecordedPass, passes_experiments, record_protocol, rig_experiments,
+                                        rig_protocol, rig_settle_times)
 from dea_ros.sim.plant import LASER_QUANTISATION_M
 from dea_ros.solvers.inputs import SampledVoltage
 from dea_ros.solvers.integrate import simulate, simulate_held
@@ -68,3 +71,26 @@ def test_identification_from_a_held_run_is_within_its_intervals():
         i = st.names.index(name)
         assert st.ci_low[i] <= value <= st.ci_high[i], (name, st.values[i], value, st.ci_low[i], st.ci_high[i])
         assert abs(st.values[i] / value - 1) < 0.01, name
+
+
+def test_two_recorded_passes_are_cut_each_on_its_own_time_line():
+    first = rig_protocol(UNLIKE, (9.0, 40.0))
+    second = Protocol.from_dict({"name": "planned", "membrane": "UNLIKE", "mass_kg": UNLIKE.mass_kg, "segments": [
+        {"kind": "rest", "hold_s": 2.0}, {"kind": "step", "initial_V": 0.0, "final_V": 1500.0, "pre_s": 0.2,
+                                          "hold_s": 1.0},
+        {"kind": "sine", "amplitude_V": 1000.0, "offset_V": 1200.0, "frequencies_Hz": [7.0], "settle_s": 3.0,
+         "measure_s": 1.0}, {"kind": "rest", "hold_s": 0.5}]}, source="planned")
+    rec1 = record_protocol(UNLIKE, first, seed=2)
+    rec2 = record_protocol(UNLIKE, second, seed=3)
+    start2 = rec1.segments[-1].end_s + 30.0
+    passes = [RecordedPass(first, rec1), RecordedPass(second, rec2, start2, {"plan_json": "{}"})]
+    exp = passes_experiments(UNLIKE, passes, seed=2)
+    assert sorted(float(s.voltage_V.max()) for s in exp.steps) == [1500.0, 2200.0]
+    step2 = next(s for s in exp.steps if s.voltage_V.max() == 1500.0)
+    # pass 2's step is pass 2's recording, at its own t0: its samples are rec2's readings, in order
+    k = int(np.flatnonzero(rec2.displacement_measured_m == step2.displacement_m[0])[0])
+    assert np.array_equal(step2.displacement_m, rec2.displacement_measured_m[k:k + step2.displacement_m.size])
+    by_waveform = {s.waveform: s for s in exp.sines}
+    assert sorted(by_waveform) == ["abs_sine", "sine"]
+    assert list(by_waveform["abs_sine"].frequency_Hz) == [9.0, 40.0]
+    assert list(by_waveform["sine"].frequency_Hz) == [7.0]
