@@ -317,6 +317,20 @@ def _cut_segments(cut: _Cut, line: _Timeline, segments: list, mass: float, path,
             raise BagError(f"{path}: segment {k} has unknown kind {kind!r}")
 
 
+def _distinct_frequencies(records: list) -> list:
+    """The sine records of one waveform in groups whose frequencies differ (the first group the record's
+    frequency is not yet in; the records' order kept): SineData holds one point per frequency."""
+    groups: list = []
+    for rec in records:
+        f = rec[0].frequency_Hz
+        target = next((g for g in groups if all(abs(r[0].frequency_Hz - f) > 1e-9 * max(f, 1.0) for r in g)), None)
+        if target is None:
+            groups.append([rec])
+        else:
+            target.append(rec)
+    return groups
+
+
 def _sine_data(cut: _Cut, series: list, noise: float | None, mass: float, source: str,
                measured_inputs: bool) -> SineData:
     """The frequency response of sine windows of one waveform (eq. 21, module docstring)."""
@@ -388,10 +402,15 @@ def experiments_from_signals(signals: BagSignals, path, segments_file=None, memb
                          source=f"{path} static segments", motion_rms_m=np.array(cut.static_motion),
                          std_error_m=std_error)
               ] if cut.static_u else []
-    # one SineData per waveform: |U sin| (no offset) and offset + U sin (a planned second pass may add it)
-    groups = [[s for s in cut.sines if s[2] == 0.0], [s for s in cut.sines if s[2] != 0.0]]
-    sources = [f"{path} sine segments", f"{path} offset sine segments" if groups[0] else f"{path} sine segments"]
-    sines = [_sine_data(cut, g, noise, mass, src, measured_inputs) for g, src in zip(groups, sources) if g]
+    # one SineData per waveform: |U sin| (no offset) and offset + U sin (a planned second pass may add it);
+    # a frequency recorded again in a waveform (at another amplitude, or by the second pass) goes into a
+    # further SineData of that waveform, as a frequency appears once in each
+    plain = _distinct_frequencies([s for s in cut.sines if s[2] == 0.0])
+    offset = _distinct_frequencies([s for s in cut.sines if s[2] != 0.0])
+    names = [f"{path} sine segments"] * bool(plain) + [f"{path} offset sine segments" if plain
+                                                       else f"{path} sine segments"] * bool(offset)
+    sines = [_sine_data(cut, g, noise, mass, name + (f" ({k + 1})" if k else ""), measured_inputs)
+             for layers, name in zip([x for x in (plain, offset) if x], names) for k, g in enumerate(layers)]
     geometry = {k: getattr(base, k) for k in GEOMETRY_FIELDS}
     try:
         return ExperimentSet(

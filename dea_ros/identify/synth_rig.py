@@ -18,7 +18,8 @@ at every update with Gaussian noise and its quantisation
 and the identifier's metadata record (:func:`~dea_ros.identify.bag_experiments.experiment_record`) go
 through the extraction a bag's data takes
 (:func:`~dea_ros.identify.bag_experiments.experiments_from_signals`): the fit sees what it would see
-from the bag identifier_node records.
+from the bag identifier_node records. An adaptive protocol's two passes (:func:`passes_experiments`) go the
+same way, each pass's schedule in its own metadata record with its own t0.
 
 Settle times (:func:`rig_settle_times`) follow from the membrane: the slowest time constant of the model
 linearised at rest (0 V and the sine's mean u^2: the creep mode, and the ringing of the mass, 1/(zeta

@@ -1,7 +1,8 @@
 """Synthetic experiments as the rig records them (issue 21, session 11): the held voltage integrated from
 rest converges (halving the tolerance, and against SciPy's DOP853 restarted at every hold), and a membrane
 unlike the presets identified from one such run lies within its intervals; two recorded passes (an adaptive
-protocol's) are cut each on its own time line, as from identifier_node's bag."""
+protocol's) are cut each on its own time line, as from identifier_node's bag, a frequency recorded twice
+in records of its own."""
 from __future__ import annotations
 
 import math
@@ -79,7 +80,9 @@ def test_two_recorded_passes_are_cut_each_on_its_own_time_line():
         {"kind": "rest", "hold_s": 2.0}, {"kind": "step", "initial_V": 0.0, "final_V": 1500.0, "pre_s": 0.2,
                                           "hold_s": 1.0},
         {"kind": "sine", "amplitude_V": 1000.0, "offset_V": 1200.0, "frequencies_Hz": [7.0], "settle_s": 3.0,
-         "measure_s": 1.0}, {"kind": "rest", "hold_s": 0.5}]}, source="planned")
+         "measure_s": 1.0},
+        {"kind": "sine", "amplitude_V": 1500.0, "frequencies_Hz": [9.0], "settle_s": 3.0, "measure_s": 1.0},
+        {"kind": "rest", "hold_s": 0.5}]}, source="planned")
     rec1 = record_protocol(UNLIKE, first, seed=2)
     rec2 = record_protocol(UNLIKE, second, seed=3)
     start2 = rec1.segments[-1].end_s + 30.0
@@ -90,7 +93,10 @@ def test_two_recorded_passes_are_cut_each_on_its_own_time_line():
     # pass 2's step is pass 2's recording, at its own t0: its samples are rec2's readings, in order
     k = int(np.flatnonzero(rec2.displacement_measured_m == step2.displacement_m[0])[0])
     assert np.array_equal(step2.displacement_m, rec2.displacement_measured_m[k:k + step2.displacement_m.size])
-    by_waveform = {s.waveform: s for s in exp.sines}
-    assert sorted(by_waveform) == ["abs_sine", "sine"]
-    assert list(by_waveform["abs_sine"].frequency_Hz) == [9.0, 40.0]
-    assert list(by_waveform["sine"].frequency_Hz) == [7.0]
+    # pass 2's offset sine is a record of its own; its 9 Hz at 1500 V (pass 1 has 9 Hz at 2500 V) is in a
+    # second |U sin| record, as a frequency appears once in each (the planner picks a frequency at two
+    # amplitudes: session 20, the identification of such a bag failed)
+    got = [(s.waveform, list(s.frequency_Hz), list(s.amplitude_V)) for s in exp.sines]
+    assert got == [("abs_sine", [9.0, 40.0], [2500.0, 2500.0]), ("abs_sine", [9.0], [1500.0]),
+                   ("sine", [7.0], [1000.0])]
+    assert exp.sines[1].source.endswith("sine segments (2)")
