@@ -37,9 +37,11 @@ __all__ = ["classify_records", "record_kinds", "branch_kind", "fitted_points", "
            "follow_applied_waveforms", "guess_for_waveform", "leave_out_for_a_round", "sweep_for"]
 
 
-def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True):
-    """The continuation sweep of the model at ``amplitude_V`` over ``freqs`` (Hz; sorted, unique)."""
-    return frequency_sweep(params, SinePeriodic(amplitude_V, 1.0), np.unique(np.asarray(freqs, float)),
+def sweep_for(params: MembraneParameters, amplitude_V: float, freqs, n_harmonics: int, realised: bool = True,
+              offset_V: float = 0.0):
+    """The continuation sweep of the model at ``amplitude_V`` (and ``offset_V``: u = offset + U sin) over
+    ``freqs`` (Hz; sorted, unique)."""
+    return frequency_sweep(params, SinePeriodic(amplitude_V, 1.0, offset_V), np.unique(np.asarray(freqs, float)),
                            n_harmonics=n_harmonics, realised=realised)
 
 
@@ -155,13 +157,15 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
     for sine in experiments.sines:
         p = params.replace(mass_kg=sine.mass_kg)
         series_by_f = {round(s.frequency_Hz, 9): s for s in sine.series}
-        for a in np.unique(sine.amplitude_V):
-            sel = np.nonzero(sine.amplitude_V == a)[0]
+        for a, offset, sel in sine.waveform_groups():
             # the kinds only: no integration of quasi-periodic responses here
-            sweep = sweep_for(p, float(a), sine.frequency_Hz[sel], n_harmonics, realised=False)
+            sweep = sweep_for(p, a, sine.frequency_Hz[sel], n_harmonics, realised=False, offset_V=offset)
             by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
             for k in sel:
-                out.append(_classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m))
+                entry = _classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m)
+                if offset:
+                    entry["offset_V"] = offset
+                out.append(entry)
     follow_applied_waveforms(out, params, experiments, n_harmonics)
     leave_out_unreproduced(out)
     return out
@@ -172,18 +176,24 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
 APPLIED_BRANCH_TOLERANCE = 0.1
 
 
-def guess_for_waveform(state: np.ndarray, waveform, n_harmonics: int, samples: int = 256) -> np.ndarray:
+def guess_for_waveform(state: np.ndarray, waveform, n_harmonics: int, samples: int = 256,
+                       offset: bool = False) -> np.ndarray:
     """The nominal sine's T/2 orbit ``state`` (3, M) as a seed for ``waveform`` (an applied periodic input):
     moved to the waveform's phase (a record starts at its own phase: the 2f component of u^2 locates it)
     and laid out over the waveform's response period (the full period T when its u^2 is not T/2-periodic).
     Without it Newton started a half-cycle off next to a fold and failed (F13 of the coverage family,
-    7.944 Hz: phase 1.13 rad; aligned it solves on the record's branch, 1011.10 um for 1011.09 measured)."""
+    7.944 Hz: phase 1.13 rad; aligned it solves on the record's branch, 1011.10 um for 1011.09 measured).
+    ``offset``: ``state`` is the nominal offset sine's orbit, over T; the f component of u locates the phase."""
     theta = 2.0 * np.pi * np.arange(samples) / samples
-    c2 = np.sum(np.asarray(waveform.at_phase(theta), float) ** 2 * np.exp(-2j * theta))
-    shift = 0.5 * float(np.angle(-c2))     # u(theta) ~ U sin(theta + shift): sin^2's 2f coefficient is -1/4
+    u = np.asarray(waveform.at_phase(theta), float)
     divisor, m = response_layout(waveform, n_harmonics, True)
     phases = 2.0 * np.pi * np.arange(m) / (m * divisor)           # over T
     state = np.asarray(state, float)
+    if offset:      # u(theta) ~ offset + U sin(theta + shift): the f coefficient of sin is 1/(2i)
+        shift = float(np.angle(np.sum(u * np.exp(-1j * theta)))) + 0.5 * np.pi
+        return state @ periodic_interpolation_matrix(state.shape[1], np.mod(phases + shift, 2.0 * np.pi)).T
+    c2 = np.sum(u ** 2 * np.exp(-2j * theta))
+    shift = 0.5 * float(np.angle(-c2))     # u(theta) ~ U sin(theta + shift): sin^2's 2f coefficient is -1/4
     return state @ periodic_interpolation_matrix(state.shape[1], np.mod(2.0 * (phases + shift), 2.0 * np.pi)).T
 
 
@@ -199,7 +209,8 @@ def follow_applied_waveforms(entries: list, params: MembraneParameters, experime
         if pt is None or pt.periodic_input is None:
             continue
         if pt.kind == "periodic" and pt.guess is not None:
-            pt = dataclasses.replace(pt, guess=guess_for_waveform(pt.guess, pt.periodic_input, n_harmonics))
+            pt = dataclasses.replace(pt, guess=guess_for_waveform(pt.guess, pt.periodic_input, n_harmonics,
+                                                                  offset=bool(e.get("offset_V"))))
         p = params.replace(mass_kg=pt.mass_kg)
         try:
             sol = point_solution(p, pt, n_harmonics)

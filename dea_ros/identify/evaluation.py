@@ -84,7 +84,7 @@ class SineComparison:
     sine: SineData
     model_at_data_m: np.ndarray             # the model's d_rms at every record (NaN where not compared)
     used: list                              # per record: "periodic", "period-doubled" or "left out"
-    dense: list = field(default_factory=list)       # (amplitude V, frequency sweep of the model)
+    dense: list = field(default_factory=list)       # (amplitude V, frequency sweep of the model, offset V)
     resonance: list = field(default_factory=list)   # per amplitude: the model's and the data's peak
     bands: list = field(default_factory=list)       # the model's bands (what a measurement sees)
     rms_error_um: float | None = None
@@ -217,19 +217,18 @@ def _add_sweeps(out: SineComparison, p: MembraneParameters, n_harmonics: int, sw
                 warnings: list) -> None:
     """The model's sweep per amplitude (dense curve, resonance peak of Table IV, bands) into ``out``."""
     sine, f = out.sine, out.sine.frequency_Hz
-    for a in np.unique(sine.amplitude_V):
-        sel = sine.amplitude_V == a
+    for a, offset, sel in sine.waveform_groups():
         f_dense = np.unique(np.r_[np.linspace(f[sel].min(), f[sel].max(), sweep_points), f[sel]])
         try:
-            sweep = sweep_for(p, float(a), f_dense, n_harmonics)
+            sweep = sweep_for(p, a, f_dense, n_harmonics, offset_V=offset)
         except (HarmonicBalanceError, RuntimeError) as exc:
-            warnings.append(f"{sine.source}: the model sweep at {a:g} V failed ({exc})")
+            warnings.append(f"{sine.source}: the model sweep at {a:g} V" + (f" + {offset:g} V offset" if offset else "")
+                            + f" failed ({exc})")
             continue
-        out.dense.append((float(a), sweep))
+        out.dense.append((a, sweep, offset))
         peak = sweep.resonance_peak(True)
-        meas = measured_resonance_peak(f[sel], sine.d_rms_m[sel],
-                                       [out.used[k] == "periodic" for k in np.nonzero(sel)[0]])
-        res = {"amplitude_V": float(a), "simulated_peak_Hz": peak["frequency_Hz"],
+        meas = measured_resonance_peak(f[sel], sine.d_rms_m[sel], [out.used[k] == "periodic" for k in sel])
+        res = {"amplitude_V": a, **({"offset_V": offset} if offset else {}), "simulated_peak_Hz": peak["frequency_Hz"],
                "simulated_peak_rms_m": peak["d_rms_m"], "measured_peak_Hz": meas["frequency_Hz"],
                "measured": meas["measured"], "measured_note": meas["note"]}
         if meas["measured"]:
@@ -237,7 +236,8 @@ def _add_sweeps(out: SineComparison, p: MembraneParameters, n_harmonics: int, sw
         else:
             res["error_percent"] = None
         out.resonance.append(res)
-        out.bands.extend([{"amplitude_V": float(a), **b.to_dict()} for b in sweep.bands])
+        out.bands.extend([{"amplitude_V": a, **({"offset_V": offset} if offset else {}), **b.to_dict()}
+                          for b in sweep.bands])
 
 
 def _add_errors(out: SineComparison, warnings: list) -> None:

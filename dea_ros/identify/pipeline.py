@@ -314,8 +314,8 @@ def _uncertainty_stage(run: _Run, evaluation: Evaluation, engine) -> list:
     """Monte Carlo confidence bands of the frequency response over the final covariance."""
     t0 = time.perf_counter()
     statistics = reported_statistics(run.joint, run.two_stage_linearisation, run.dynamic)
-    peaks = {(s.sine.source, r["amplitude_V"]): r.get("simulated_peak_Hz") for s in evaluation.sines
-             for r in s.resonance}
+    peaks = {(s.sine.source, r["amplitude_V"], r.get("offset_V", 0.0)): r.get("simulated_peak_Hz")
+             for s in evaluation.sines for r in s.resonance}
     bands, warnings = response_bands(run.params, statistics, run.experiments, int(run.options.uncertainty_samples),
                                      run.options.n_harmonics, engine, peaks)
     run.warnings += warnings

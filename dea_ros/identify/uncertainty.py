@@ -73,6 +73,7 @@ class ResponseBand:
     seed: int
     sample_peaks_Hz: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     sample_curves_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+    offset_V: float = 0.0          # of the excitation u = offset + U sin (0: |U sin| or U sin)
 
     def contains(self, frequencies_Hz, d_rms_m, slack: float = 0.0) -> np.ndarray:
         """Per frequency: whether ``d_rms_m`` (on this band's frequencies) lies in the band (+- slack x width)."""
@@ -81,7 +82,8 @@ class ResponseBand:
         return (d >= self.lower_m - slack * width) & (d <= self.upper_m + slack * width)
 
     def to_dict(self) -> dict:
-        return {"amplitude_V": self.amplitude_V, "mass_kg": self.mass_kg, "confidence": self.confidence,
+        return {"amplitude_V": self.amplitude_V, **({"offset_V": self.offset_V} if self.offset_V else {}),
+                "mass_kg": self.mass_kg, "confidence": self.confidence,
                 "samples": self.samples, "failed_samples": self.n_failed, "parameters": list(self.parameters),
                 "seed": self.seed, "peak_frequency_Hz": self.peak_frequency_Hz,
                 "peak_frequency_ci_Hz": list(self.peak_frequency_ci_Hz), "peak_d_rms_m": self.peak_d_rms_m,
@@ -139,9 +141,9 @@ def sample_parameters(params: MembraneParameters, statistics: ParameterStatistic
     return out
 
 
-def _nominal(p: MembraneParameters, amplitude_V: float, freqs: np.ndarray, n_harmonics: int):
+def _nominal(p: MembraneParameters, amplitude_V: float, freqs: np.ndarray, n_harmonics: int, offset_V: float = 0.0):
     """The identified model's sweep: (d_rms per frequency, state per frequency, peak frequency, peak d_rms)."""
-    sweep = frequency_sweep(p, SinePeriodic(amplitude_V, float(freqs[0])), freqs, n_harmonics=n_harmonics,
+    sweep = frequency_sweep(p, SinePeriodic(amplitude_V, float(freqs[0]), offset_V), freqs, n_harmonics=n_harmonics,
                             stability=False, branch_switching=False, realised=False)
     d = sweep.realised_d_rms_m
     states = []
@@ -161,7 +163,7 @@ def _responses(task: dict) -> list:
     is on); the peak: a continuation sweep over +-``window`` around the identified peak, located on the
     branch (NaN when it sits on the window's edge)."""
     freqs = np.asarray(task["frequencies_Hz"], float)
-    amp, n_h = float(task["amplitude_V"]), int(task["n_harmonics"])
+    amp, n_h, offset = float(task["amplitude_V"]), int(task["n_harmonics"]), float(task.get("offset_V", 0.0))
     f_peak, w = float(task["peak_Hz"]), float(task["window"])
     window = np.linspace(f_peak * (1.0 - w), f_peak * (1.0 + w), 3)   # the steps follow the branch, not the grid
     guesses = [np.asarray(g, float) for g in task["states"]]
@@ -173,9 +175,10 @@ def _responses(task: dict) -> list:
         try:
             p = MembraneParameters(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in data.items()})
             d0 = float(static_equilibrium(p, 0.0).displacement_m)
-            sols = solve_native_batch(p, [SinePeriodic(amp, float(f)) for f in freqs], n_h, x_guesses=guesses)
+            sols = solve_native_batch(p, [SinePeriodic(amp, float(f), offset) for f in freqs], n_h,
+                                      x_guesses=guesses)
             curve = [s.displacement_rms(d0) for s in sols]
-            sweep = frequency_sweep(p, SinePeriodic(amp, float(window[0])), window, n_harmonics=n_h,
+            sweep = frequency_sweep(p, SinePeriodic(amp, float(window[0]), offset), window, n_harmonics=n_h,
                                     stability=False, branch_switching=False, realised=False)
             peak = sweep.resonance_peak(False)
             pf = float(peak["frequency_Hz"])
@@ -193,8 +196,9 @@ def _responses(task: dict) -> list:
 def response_band(params: MembraneParameters, statistics: ParameterStatistics, amplitude_V: float,
                   frequencies_Hz, n_samples: int = DEFAULT_SAMPLES, seed: int = 0, confidence: float = 0.95,
                   n_harmonics: int = 8, mass_kg: float | None = None, engine=None,
-                  window: float = 0.3) -> ResponseBand:
-    """The confidence band of the frequency response and of the resonance peak (module docstring).
+                  window: float = 0.3, offset_V: float = 0.0) -> ResponseBand:
+    """The confidence band of the frequency response and of the resonance peak (module docstring), of
+    u = ``offset_V`` + ``amplitude_V`` sin (|U sin| without the offset: the same u^2).
 
     ``engine``: an open :class:`~dea_ros.study.engine.Engine` to spread the batches of samples on
     (default: this process). ``window``: each sample's peak is searched within +-window (relative) of the
@@ -206,10 +210,11 @@ def response_band(params: MembraneParameters, statistics: ParameterStatistics, a
     p0 = params if mass_kg is None else params.replace(mass_kg=float(mass_kg))
     freqs = np.unique(np.asarray(frequencies_Hz, float))
     members = sample_parameters(p0, statistics, n_samples, seed)
-    nom_d, states, nom_f, nom_peak = _nominal(p0, float(amplitude_V), freqs, n_harmonics)
+    nom_d, states, nom_f, nom_peak = _nominal(p0, float(amplitude_V), freqs, n_harmonics, float(offset_V))
     plain = [None if m is None else m.to_dict() for m in members]
     common = {"frequencies_Hz": freqs.tolist(), "amplitude_V": float(amplitude_V), "n_harmonics": n_harmonics,
-              "states": [st.tolist() for st in states], "peak_Hz": nom_f, "window": window}
+              "states": [st.tolist() for st in states], "peak_Hz": nom_f, "window": window,
+              "offset_V": float(offset_V)}
     tasks = [(k, dict(common, members=plain[s:s + _BATCH])) for k, s in enumerate(range(0, len(plain), _BATCH))]
     results = {}
     if engine is None:
@@ -240,29 +245,31 @@ def response_band(params: MembraneParameters, statistics: ParameterStatistics, a
         peak_frequency_Hz=nom_f, peak_d_rms_m=nom_peak, peak_frequency_ci_Hz=ci(peaks_f),
         peak_d_rms_ci_m=ci(peaks_d), samples=len(samples), n_failed=n_samples - len(samples),
         confidence=confidence, parameters=tuple(statistics.names), seed=seed, sample_peaks_Hz=peaks_f,
-        sample_curves_m=curves)
+        sample_curves_m=curves, offset_V=float(offset_V))
 
 
 def response_bands(params: MembraneParameters, statistics: ParameterStatistics | None, experiments: ExperimentSet,
                    n_samples: int, n_harmonics: int = 8, engine=None, peaks: dict | None = None) -> tuple:
-    """(bands, warnings): a :func:`response_band` per sine data set and amplitude of ``experiments``, on
-    :data:`BAND_POINTS` frequencies over its range and as many within +-15 % of the model's peak
-    (``peaks``: (source, amplitude V) -> the model's peak frequency in Hz); a warning where none can be drawn."""
+    """(bands, warnings): a :func:`response_band` per sine data set and waveform (amplitude, offset) of
+    ``experiments``, on :data:`BAND_POINTS` frequencies over its range and as many within +-15 % of the model's
+    peak (``peaks``: (source, amplitude V, offset V) -> the model's peak frequency in Hz); a warning where none
+    can be drawn."""
     peaks = peaks or {}
     bands, warnings = [], []
     if statistics is None:
         return bands, ["no confidence band of the frequency response: no dynamic fit statistics"]
     for sine in experiments.sines:
-        for a in np.unique(sine.amplitude_V):
-            f = sine.frequency_Hz[sine.amplitude_V == a]
+        for a, offset, sel in sine.waveform_groups():
+            f = sine.frequency_Hz[sel]
             grid = np.linspace(f.min(), f.max(), BAND_POINTS)
-            fp = peaks.get((sine.source, float(a)))
+            fp = peaks.get((sine.source, a, offset))
             if fp is not None and np.isfinite(fp):
                 near = np.linspace(0.85 * fp, 1.15 * fp, BAND_POINTS)
                 grid = np.union1d(grid, near[(near >= f.min()) & (near <= f.max())])
             try:
-                bands.append(response_band(params, statistics, float(a), grid, n_samples=n_samples,
-                                           n_harmonics=n_harmonics, mass_kg=sine.mass_kg, engine=engine))
+                bands.append(response_band(params, statistics, a, grid, n_samples=n_samples,
+                                           n_harmonics=n_harmonics, mass_kg=sine.mass_kg, engine=engine,
+                                           offset_V=offset))
             except (ValueError, HarmonicBalanceError, RuntimeError) as exc:
                 warnings.append(f"{sine.source}: no confidence band of the frequency response at {a:g} V ({exc})")
     return bands, warnings

@@ -227,14 +227,17 @@ class SineSeries:
         return third_difference_noise(self.displacement_m)
 
     def classify(self, noise_m: float | None = None) -> dict:
-        """What the record shows, from the data alone: ``periodic`` (period T/2 of u^2),
-        ``period-doubled`` (period T: odd harmonics of f) or ``quasi-periodic`` (no period).
+        """What the record shows, from the data alone: ``periodic`` (the period P of u^2: T/2 for |U sin|
+        and U sin, T for an offset sine offset + U sin, whose u^2 has a component at f),
+        ``period-doubled`` (period 2P: odd harmonics of 1/(2P)) or ``quasi-periodic`` (no period).
 
-        Least-squares Fourier series over the whole periods with harmonics of 2f (period T/2)
-        and of f (period T), up to 0.45 of the sampling rate; their residual RMS is compared
-        with the laser noise (``noise_m``, else estimated from the record). Period T when the
-        odd harmonics are significant (more than 5 sigma of chi-square and an RMS above 3x the
-        noise) and the full-period fit leaves no more than 2x the noise; when that fit leaves more,
+        Least-squares Fourier series over the whole periods with harmonics of 1/P and of 1/(2P),
+        up to 0.45 of the sampling rate; their residual RMS is compared with the laser noise
+        (``noise_m``, else estimated from the record). The forcing's period P from the applied voltage:
+        T when u^2's harmonics of f that T/2 does not have carry more than a quarter of its spread
+        (``forcing_period``). Period 2P when the odd harmonics of 1/(2P) are significant (more than 5
+        sigma of chi-square and an RMS above 3x the noise) and the full fit leaves no more than 2x the
+        noise; when that fit leaves more,
         ``not settled`` if the misfit sits in the first half of the record (a transient that has not
         died out: the record began too soon after the frequency change), else quasi-periodic;
         period T/2 otherwise. Misfits within what the applied voltage's own departure from
@@ -249,12 +252,12 @@ class SineSeries:
         sigma = max(float(sigma or 0.0), 1e-12 * max(float(np.ptp(d)), 1e-9))
         fs = 1.0 / float(np.median(np.diff(self.time_s)))
         top = max(2, min(60, int(0.45 * fs / self.frequency_Hz)))
-        theta = 2.0 * np.pi * self.frequency_Hz * t
+        phase = 2.0 * np.pi * self.frequency_Hz * t     # harmonics k of f; with the period 2T below, of f/2
 
         def fit(harmonics, y=d):
-            cols = [np.ones_like(theta)]
+            cols = [np.ones_like(phase)]
             for k in harmonics:
-                cols += [np.cos(k * theta), np.sin(k * theta)]
+                cols += [np.cos(k * phase), np.sin(k * phase)]
             a = np.column_stack(cols)
             coef, *_ = np.linalg.lstsq(a, y, rcond=None)
             res = y - a @ coef
@@ -265,7 +268,14 @@ class SineSeries:
         # or amplifier updating at 250 Hz) makes u^2, and so the response, not exactly periodic
         u2 = self.voltage_V[keep] ** 2
         u2_spread = float(np.std(u2))
-        input_misfit = (math.sqrt(fit(range(1, top + 1), u2)[0] / u2.size) / u2_spread) if u2_spread > 0 else 0.0
+        rss_u2_half = fit(range(2, top + 1, 2), u2)[0]
+        rss_u2 = fit(range(1, top + 1), u2)[0]
+        input_misfit = (math.sqrt(rss_u2 / u2.size) / u2_spread) if u2_spread > 0 else 0.0
+        # an offset sine: u^2 has period T (its harmonics of f carry it), the response's period is T
+        forcing_T = u2_spread > 0 and math.sqrt(max(rss_u2_half - rss_u2, 0.0) / u2.size) > 0.25 * u2_spread
+        if forcing_T:
+            phase = phase / 2.0
+            top *= 2
         d_spread = max(float(np.std(d)), 1e-15)
         tolerance = 3.0 * input_misfit + 0.02       # non-periodic share the input explains
 
@@ -297,7 +307,7 @@ class SineSeries:
         return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "odd_rms_m": odd_rms,
                 "residual_first_half_m": r_first, "residual_second_half_m": r_second,
                 "input_nonperiodic_fraction": input_misfit, "response_spread_m": d_spread,
-                "noise_m": sigma, "periods": n_periods, "harmonics": top}
+                "noise_m": sigma, "periods": n_periods, "harmonics": top, "forcing_period": "T" if forcing_T else "T/2"}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic):
@@ -381,6 +391,23 @@ class SineData:
         """The measured rest position d0 (m) record ``k``'s RMS is about (eq. 21), None when not stated
         (the fit then takes the model's rest position)."""
         return None if self.d0_m is None else float(self.d0_m[k])
+
+    def offset_V(self, k: int) -> float:
+        """The offset of record ``k``'s applied voltage u = offset + U sin (V, to 1 V): the mean over a period
+        of its measured input; 0 for |U sin| and U sin (their u^2 has period T/2) and without a measured
+        input (a table's records are U sin or |U sin|)."""
+        if self.waveform != "sine" or not self.inputs:
+            return 0.0
+        u = np.asarray(self.inputs[k].at_phase(np.linspace(0.0, 2.0 * np.pi, 256, endpoint=False)), float)
+        offset = float(np.mean(u))
+        return float(round(offset)) if abs(offset) > 0.01 * float(self.amplitude_V[k]) else 0.0
+
+    def waveform_groups(self) -> list:
+        """[(amplitude V, offset V, record indices)]: the records one sweep of the model covers (the same
+        excitation but its frequency), by amplitude, then offset."""
+        offsets = np.array([self.offset_V(k) for k in range(self.frequency_Hz.size)])
+        pairs = sorted({(float(a), float(o)) for a, o in zip(self.amplitude_V, offsets)})
+        return [(a, o, np.nonzero((self.amplitude_V == a) & (offsets == o))[0]) for a, o in pairs]
 
 
 @dataclass

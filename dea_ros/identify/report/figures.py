@@ -106,12 +106,12 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
     fig, ax = _fig(8.5, 5.0)
     for k, item in enumerate(sines):
         sine = item.sine
-        for amp, sweep in item.dense:
+        for amp, sweep, offset in item.dense:
             for br in sweep.branches:
                 col = "C0" if br.kind == "periodic" else "C1"
                 (fs, ds), (fu, du) = stability_segments(br, sweep.bifurcations)
                 ax.plot(fs, ds * 1e3, "-", color=col, lw=1.0, label=f"model {br.name} branch ({br.kind}), "
-                        f"{amp / 1e3:g} kV")
+                        f"{amp / 1e3:g} kV" + (f" + {offset / 1e3:g} kV offset" if offset else ""))
                 ax.plot(fu, du * 1e3, ":", color=col, lw=0.8)
             qp = [r for r in sweep.responses if r.branch == "integration"]
             if qp:
