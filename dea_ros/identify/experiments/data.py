@@ -393,14 +393,15 @@ class SineData:
         return None if self.d0_m is None else float(self.d0_m[k])
 
     def offset_V(self, k: int) -> float:
-        """The offset of record ``k``'s applied voltage u = offset + U sin (V, to 1 V): the mean over a period
-        of its measured input; 0 for |U sin| and U sin (their u^2 has period T/2) and without a measured
-        input (a table's records are U sin or |U sin|)."""
+        """The offset of record ``k``'s applied voltage u = offset + U sin (V): the mean over a period of its
+        measured input, to 1 % of U (a held voltage's mean is off by ~0.1 %: records of one nominal offset
+        share one sweep of the model); 0 for |U sin| and U sin (their u^2 has period T/2) and without a
+        measured input (a table's records are U sin or |U sin|)."""
         if self.waveform != "sine" or not self.inputs:
             return 0.0
         u = np.asarray(self.inputs[k].at_phase(np.linspace(0.0, 2.0 * np.pi, 256, endpoint=False)), float)
-        offset = float(np.mean(u))
-        return float(round(offset)) if abs(offset) > 0.01 * float(self.amplitude_V[k]) else 0.0
+        grid = max(0.01 * float(self.amplitude_V[k]), 1e-3)
+        return float(round(float(np.mean(u)) / grid) * grid)
 
     def waveform_groups(self) -> list:
         """[(amplitude V, offset V, record indices)]: the records one sweep of the model covers (the same

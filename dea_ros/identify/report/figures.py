@@ -108,10 +108,13 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
         sine = item.sine
         for amp, sweep, offset in item.dense:
             for br in sweep.branches:
-                col = "C0" if br.kind == "periodic" else "C1"
+                col = ("C2" if offset else "C0") if br.kind == "periodic" else "C1"
                 (fs, ds), (fu, du) = stability_segments(br, sweep.bifurcations)
-                ax.plot(fs, ds * 1e3, "-", color=col, lw=1.0, label=f"model {br.name} branch ({br.kind}), "
-                        f"{amp / 1e3:g} kV" + (f" + {offset / 1e3:g} kV offset" if offset else ""))
+                # an offset sine's u^2 has period T: its primary orbit has period T, not T/2
+                name = ("primary (period T)" if br.kind == "periodic" else "period-doubled (2T)") if offset \
+                    else f"{br.name} branch ({br.kind})"
+                ax.plot(fs, ds * 1e3, "-", color=col, lw=1.0, label=f"model {name}, {amp / 1e3:g} kV"
+                        + (f" + {offset / 1e3:g} kV offset" if offset else ""))
                 ax.plot(fu, du * 1e3, ":", color=col, lw=0.8)
             qp = [r for r in sweep.responses if r.branch == "integration"]
             if qp:
