@@ -145,6 +145,18 @@ class StepData:
         return float(np.median(np.diff(self.time_s)))
 
 
+def _fourier_residual(phase: np.ndarray, harmonics, y: np.ndarray) -> tuple:
+    """(residual sum of squares, number of coefficients, residual) of the least-squares Fourier series
+    of ``y`` with a mean and the ``harmonics`` k (cos and sin of k x ``phase``)."""
+    cols = [np.ones_like(phase)]
+    for k in harmonics:
+        cols += [np.cos(k * phase), np.sin(k * phase)]
+    a = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    res = y - a @ coef
+    return float(res @ res), a.shape[1], res
+
+
 @dataclass(frozen=True)
 class SineSeries:
     """A sampled record under a sine voltage (optional companion of :class:`SineData`)."""
@@ -254,22 +266,12 @@ class SineSeries:
         top = max(2, min(60, int(0.45 * fs / self.frequency_Hz)))
         phase = 2.0 * np.pi * self.frequency_Hz * t     # harmonics k of f; with the period 2T below, of f/2
 
-        def fit(harmonics, y=d):
-            cols = [np.ones_like(phase)]
-            for k in harmonics:
-                cols += [np.cos(k * phase), np.sin(k * phase)]
-            a = np.column_stack(cols)
-            coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-            res = y - a @ coef
-            fit.residual = res
-            return float(res @ res), a.shape[1]
-
         # how periodic the applied voltage itself is: a command rate incommensurate with f (a DAQ
         # or amplifier updating at 250 Hz) makes u^2, and so the response, not exactly periodic
         u2 = self.voltage_V[keep] ** 2
         u2_spread = float(np.std(u2))
-        rss_u2_half = fit(range(2, top + 1, 2), u2)[0]
-        rss_u2 = fit(range(1, top + 1), u2)[0]
+        rss_u2_half = _fourier_residual(phase, range(2, top + 1, 2), u2)[0]
+        rss_u2 = _fourier_residual(phase, range(1, top + 1), u2)[0]
         input_misfit = (math.sqrt(rss_u2 / u2.size) / u2_spread) if u2_spread > 0 else 0.0
         # an offset sine: u^2 has period T (its harmonics of f carry it), the response's period is T
         forcing_T = u2_spread > 0 and math.sqrt(max(rss_u2_half - rss_u2, 0.0) / u2.size) > 0.25 * u2_spread
@@ -279,9 +281,8 @@ class SineSeries:
         d_spread = max(float(np.std(d)), 1e-15)
         tolerance = 3.0 * input_misfit + 0.02       # non-periodic share the input explains
 
-        rss_half, p_half = fit(range(2, top + 1, 2))
-        rss_full, p_full = fit(range(1, top + 1))
-        res_full = fit.residual
+        rss_half, p_half, _res = _fourier_residual(phase, range(2, top + 1, 2), d)
+        rss_full, p_full, res_full = _fourier_residual(phase, range(1, top + 1), d)
         n = d.size
         r_half = math.sqrt(rss_half / max(n - p_half, 1))
         r_full = math.sqrt(rss_full / max(n - p_full, 1))
@@ -307,7 +308,8 @@ class SineSeries:
         return {"kind": kind, "residual_T2_m": r_half, "residual_T_m": r_full, "odd_rms_m": odd_rms,
                 "residual_first_half_m": r_first, "residual_second_half_m": r_second,
                 "input_nonperiodic_fraction": input_misfit, "response_spread_m": d_spread,
-                "noise_m": sigma, "periods": n_periods, "harmonics": top, "forcing_period": "T" if forcing_T else "T/2"}
+                "noise_m": sigma, "periods": n_periods, "harmonics": top,
+                "forcing_period": "T" if forcing_T else "T/2"}
 
     def measured_input(self, harmonics: int = 24, samples: int = 256):
         """The voltage actually applied, as one period for harmonic balance (a SampledPeriodic):
