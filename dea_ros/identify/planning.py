@@ -32,7 +32,12 @@ Every record is held before it is measured until its transient is below ``PlanLi
 (:func:`record_settle`): the slowest time constant of the model linearised at the record's operating
 point (:func:`~dea_ros.model.settling.settle_time`; on a slow membrane several creep times eta1/k1)
 x ln(transient / tolerance), at least the fixed holds of :class:`PlanLimits`, at most ``max_settle_s``
-(then the plan's notes say the record is measured unsettled). A record's cost includes its hold.
+(then the plan's notes say the record is measured unsettled). A record's cost includes its hold. Where the
+cap bites, the transient left when the record is measured (``CandidateRecord.transient_left_m``) is an error
+the noise does not state: it is added to the record's uncertainty (in quadrature), as the bag extraction adds
+a record's unsettled change, and a record where the membrane is not stable is no candidate (session 20:
+records at the resonance peak held 96 s with 0.2-0.4 um left were picked for their information and biased
+the second pass's k1 by six standard errors).
 """
 from __future__ import annotations
 
@@ -199,6 +204,9 @@ class CandidateRecord:
     settle_s: float = float("nan")
     time_constant_s: float = float("nan")
     settle_warning: str = ""         # the cap bit (or no equilibrium): the record is measured unsettled
+    #: where the cap bit: the transient left when it is measured (m; inf where the membrane is not stable
+    #: there), an uncertainty of the record beyond the noise; 0 where it settles
+    transient_left_m: float = 0.0
 
     def label(self) -> str:
         if self.kind == "sine":
@@ -211,6 +219,8 @@ class CandidateRecord:
     def to_dict(self) -> dict:
         out = {"kind": self.kind, "label": self.label(), "duration_s": self.duration_s, "mass_kg": self.mass_kg,
                "settle_s": self.settle_s, "time_constant_s": self.time_constant_s}
+        if self.transient_left_m:
+            out["transient_left_m"] = self.transient_left_m
         if self.kind == "sine":
             out.update(frequency_Hz=self.frequency_Hz, amplitude_V=self.amplitude_V, offset_V=self.offset_V)
         elif self.kind == "step":
@@ -348,7 +358,9 @@ def _settle_fields(settle: SettleTime, what: str = "") -> dict:
     warning = settle.warning(what) or ("" if math.isfinite(settle.amplitude_m) else
                                        f"{what}: no static equilibrium at {settle.voltage_V:.0f} V, held "
                                        f"{settle.settle_s:.3g} s; the record may be measured before it settled")
-    return {"settle_s": settle.settle_s, "time_constant_s": settle.time_constant_s, "settle_warning": warning}
+    left = (settle.residual_m if math.isfinite(settle.amplitude_m) else math.inf) if settle.capped else 0.0
+    return {"settle_s": settle.settle_s, "time_constant_s": settle.time_constant_s, "settle_warning": warning,
+            "transient_left_m": left}
 
 
 def candidate_records(params: MembraneParameters, limits: PlanLimits | None = None) -> list:
@@ -405,7 +417,7 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
         rest_m = float(static_equilibrium(p.replace(mass_kg=record.mass_kg), 0.0).displacement_m)
         points = [FrequencyPoint(record.frequency_Hz, record.amplitude_V, 0.0, record.mass_kg, record.label(),
                                  periodic_input=excitation, rest_d0_m=rest_m)]
-        rms_sigma = [noise / math.sqrt(max(record.measured_samples, 1))]
+        rms_sigma = [math.hypot(noise / math.sqrt(max(record.measured_samples, 1)), record.transient_left_m)]
     elif record.kind == "step":
         t = np.arange(0.0, limits.step_pre_s + limits.step_hold_s, 1.0 / limits.sample_rate_Hz)
         u = np.where(t < limits.step_pre_s, 0.0, record.final_V)
@@ -414,8 +426,9 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
         static = StaticData(np.array([record.mass_kg]), np.array([record.voltage_V]), np.zeros(1), record.label())
     static_sigma = first.static_sigma_m if math.isfinite(first.static_sigma_m) and first.static_sigma_m > 0 \
         else noise / math.sqrt(max(record.measured_samples, 1))
-    obj = JointObjective(p, static, steps, points, static_sigma, [noise] * len(steps), rms_sigma,
-                         fit_curvature=curvature, fit_slope=slope)
+    left = record.transient_left_m      # an unsettled record's leftover transient: an error beyond the noise
+    obj = JointObjective(p, static, steps, points, math.hypot(static_sigma, left),
+                         [math.hypot(noise, left)] * len(steps), rms_sigma, fit_curvature=curvature, fit_slope=slope)
     if obj.names != first.names:
         raise PlanningError(f"the candidate's parameters {obj.names} differ from the first fit's {first.names}")
     return obj
@@ -428,6 +441,10 @@ def candidate_information(first: FirstFit, candidates, limits: PlanLimits | None
     scale = first.scale()
     out, notes = [], []
     for c in candidates:
+        if not math.isfinite(c.transient_left_m):
+            notes.append(f"{c.label()}: left out (the membrane is not stable there at the first fit: it would be "
+                         "measured before it settles)")
+            continue
         try:
             obj = _objective_for(first, c, limits)
             jac = obj.physical_jacobian(obj.theta0()) * scale[None, :]
