@@ -21,6 +21,8 @@ import json
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ..bag import BagReader
 from .bag_experiments import experiment_passes
 from .planning import ExperimentPlan, PlanLimits, first_fit_from_result, fit_widths, plan_experiments, plan_protocol
@@ -52,9 +54,11 @@ def _rest_before_step_s(segments) -> float:
     return rest
 
 
-def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> PlanLimits:
+def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None,
+                        sample_rate_Hz: float | None = None) -> PlanLimits:
     """The planner's limits for a second pass of ``base``: no voltage above the first pass's peak (nor
-    ``max_voltage_V``, the rig's maximum, where given), and every record as long as the first pass's of
+    ``max_voltage_V``, the rig's maximum, where given), the laser's ``sample_rate_Hz`` (the samples a
+    record's RMS and a step are measured with; default PlanLimits'), and every record as long as the first pass's of
     its kind (its sines' settle/measure with at least two periods measured, its step's pre/hold, its
     static hold/measure; a step after at least the rest at 0 V the first pass gave its step), held longer
     where the fitted membrane needs it to settle (:func:`~.planning.record_settle`), at most the protocol's
@@ -63,6 +67,8 @@ def limits_for_protocol(base: Protocol, max_voltage_V: float | None = None) -> P
     peak = _peak_V(schedule)
     kw = {"max_voltage_V": min(peak, max_voltage_V) if max_voltage_V else peak,
           "step_rest_min_s": max(2.0, _rest_before_step_s(schedule)), "max_settle_s": base.adaptive_max_settle_s}
+    if sample_rate_Hz:
+        kw["sample_rate_Hz"] = float(sample_rate_Hz)
     fields = {"sine": (("settle_s", "settle_s"), ("measure_s", "measure_s")),
               "step": (("pre_s", "step_pre_s"), ("hold_s", "step_hold_s")),
               "static": (("hold_s", "static_hold_s"), ("measure_s", "static_measure_s"))}
@@ -98,12 +104,22 @@ def _json_float(value):
     return float(value)
 
 
+def _sample_rate_Hz(result) -> float | None:
+    """The sample rate of the first step record the result was fitted with (Hz), None without one (session 20:
+    the planner assumed PlanLimits' 1 kHz for a rig sampled at 500 Hz; its expected widths were 1.3x narrow)."""
+    steps = getattr(getattr(result, "experiments", None), "steps", None) or []
+    if not steps or np.asarray(steps[0].time_s).size < 2:
+        return None
+    return float(1.0 / np.median(np.diff(np.asarray(steps[0].time_s, float))))
+
+
 def plan_second_pass(first_result, base: Protocol, max_voltage_V: float | None = None) -> SecondPass:
     """The second pass of an adaptive protocol from its first fit (an
     :class:`~dea_ros.identify.result.IdentificationResult`): :func:`plan_experiments` within
-    ``base.adaptive_budget_s`` and :func:`limits_for_protocol`, as :func:`plan_protocol` segments.
+    ``base.adaptive_budget_s`` and :func:`limits_for_protocol` (the laser's sample rate that of the first pass's
+    step record: the planned records are measured as those were), as :func:`plan_protocol` segments.
     PlanningError when the first fit has no Fisher information or nothing can be planned."""
-    limits = limits_for_protocol(base, max_voltage_V)
+    limits = limits_for_protocol(base, max_voltage_V, _sample_rate_Hz(first_result))
     first = first_fit_from_result(first_result)
     plan = plan_experiments(first, budget_s=base.adaptive_budget_s, limits=limits)
     protocol = plan_protocol(plan, base, limits)

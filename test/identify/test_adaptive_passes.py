@@ -19,6 +19,7 @@ from dea_ros.identify.adaptive import adaptive_markdown, adaptive_summary, limit
 from dea_ros.identify.bag_experiments import experiment_passes, experiment_record, experiments_from_bag, \
     pass_metadata_name
 from dea_ros.identify.pipeline import identify
+from dea_ros.identify.planning import PlanLimits
 from dea_ros.identify.protocols import Protocol, load_protocol
 from dea_ros.identify.synth import synthesize_experiments
 from dea_ros.model import preset, static_equilibrium
@@ -178,6 +179,9 @@ def test_the_second_pass_runs_the_planners_picks_within_the_budget(planned):
     extra = second.record_extra()
     assert json.loads(extra["plan_json"])["picks"][0]["label"] == plan.picks[0].record.label()
     assert json.loads(extra["first_fit_json"])["parameters"]["eta1_Pa_s"] == pytest.approx(res.parameters.eta1_Pa_s)
+    # planned as the first pass was measured: its step's sample rate (not PlanLimits' 1 kHz; session 20)
+    step_rate = 1.0 / np.median(np.diff(res.experiments.steps[0].time_s))
+    assert second.limits.sample_rate_Hz == pytest.approx(step_rate) and step_rate != PlanLimits().sample_rate_Hz
 
 
 def test_a_two_pass_bag_reports_the_plan_and_the_realised_widths(two_passes, planned, tmp_path):
