@@ -319,11 +319,12 @@ def _cut_segments(cut: _Cut, line: _Timeline, segments: list, mass: float, path,
 
 def _distinct_frequencies(records: list) -> list:
     """The sine records of one waveform in groups whose frequencies differ (the first group the record's
-    frequency is not yet in; the records' order kept): SineData holds one point per frequency."""
+    frequency is not yet in, within 1e-6 relative, wider than SineData's own check; the records' order kept):
+    SineData holds one point per frequency."""
     groups: list = []
     for rec in records:
         f = rec[0].frequency_Hz
-        target = next((g for g in groups if all(abs(r[0].frequency_Hz - f) > 1e-9 * max(f, 1.0) for r in g)), None)
+        target = next((g for g in groups if all(abs(r[0].frequency_Hz - f) > 1e-6 * max(f, 1.0) for r in g)), None)
         if target is None:
             groups.append([rec])
         else:
