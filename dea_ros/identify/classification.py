@@ -60,8 +60,28 @@ def record_kinds(experiments: ExperimentSet, noise_m: float | None) -> dict:
 
 
 def _candidates(sweep, f: float) -> list:
-    """(branch name, SweepPoint) of every periodic solution at f."""
+    """(branch name, SweepPoint) of every periodic solution at f (none without a sweep)."""
+    if sweep is None:
+        return []
     return [(b.name, p) for b in sweep.branches for p in b.points if abs(p.frequency_Hz - f) <= 1e-9 * max(f, 1.0)]
+
+
+def _group_sweep(params: MembraneParameters, amplitude_V: float, offset_V: float, freqs, n_harmonics: int) -> tuple:
+    """(sweep, '') of one excitation's records (the kinds only), or (None, why) when the model's response cannot be
+    computed. A sweep whose first frequency does not solve (next to a fold: a planned second pass's records sit at
+    the resonance peak) starts again at half of it, from below, as a slow upward sweep reaches the records."""
+    freqs = np.asarray(freqs, float)
+    try:
+        return sweep_for(params, amplitude_V, freqs, n_harmonics, realised=False, offset_V=offset_V), ""
+    except HarmonicBalanceError:
+        pass
+    try:
+        return sweep_for(params, amplitude_V, np.r_[0.5 * freqs.min(), freqs], n_harmonics, realised=False,
+                         offset_V=offset_V), ""
+    except HarmonicBalanceError as exc:
+        what = f"{amplitude_V:g} V" + (f" + {offset_V:g} V offset" if offset_V else "")
+        return None, (f"the model's response to {what} could not be computed ({str(exc)[:160]}); classified again "
+                      "after the next round of the fit")
 
 
 def _choose(data_kind, model_kind, cands: list, stable: list, meas: float, f: float) -> tuple:
@@ -158,11 +178,12 @@ def classify_records(params: MembraneParameters, experiments: ExperimentSet, n_h
         p = params.replace(mass_kg=sine.mass_kg)
         series_by_f = {round(s.frequency_Hz, 9): s for s in sine.series}
         for a, offset, sel in sine.waveform_groups():
-            # the kinds only: no integration of quasi-periodic responses here
-            sweep = sweep_for(p, a, sine.frequency_Hz[sel], n_harmonics, realised=False, offset_V=offset)
-            by_f = {round(r.frequency_Hz, 9): r for r in sweep.responses}
+            sweep, failure = _group_sweep(p, a, offset, sine.frequency_Hz[sel], n_harmonics)
+            by_f = {} if sweep is None else {round(r.frequency_Hz, 9): r for r in sweep.responses}
             for k in sel:
                 entry = _classify_record(sine, k, a, sweep, by_f, series_by_f, noise_m)
+                if failure:
+                    entry["used"], entry["reason"] = "left out", failure
                 if offset:
                     entry["offset_V"] = offset
                 out.append(entry)

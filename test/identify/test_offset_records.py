@@ -48,3 +48,37 @@ def test_offset_sines_are_periodic_records_with_the_period_of_their_excitation_a
         assert abs(e["fitted_model_rms_m"] / e["measured_rms_m"] - 1.0) < 0.01, e
     assert [e.get("offset_V", 0.0) for e in entries] == [0.0] + [1200.0] * len(FREQUENCIES_HZ)
     assert "guess" in entries[-1] and np.all(np.isfinite(entries[-1]["guess"]))
+
+
+def test_a_sweep_that_cannot_start_at_the_records_starts_below_them_or_leaves_them_out(monkeypatch):
+    """Session 20's CI: a planned pass's records at the resonance peak, the model's sweep started at the first of
+    them did not solve (next to a fold) and the identification failed. The sweep starts again from half the lowest
+    frequency (upward, as a slow sweep reaches them); if that fails too, the records are left out of the round."""
+    import dea_ros.identify.classification as classification
+    from dea_ros.errors import HarmonicBalanceError
+
+    exp = _experiments()
+    real = classification.sweep_for
+    calls = []
+
+    def starts_below_only(params, amplitude_V, freqs, n_harmonics, realised=True, offset_V=0.0):
+        calls.append((amplitude_V, offset_V, float(np.min(freqs))))
+        if offset_V and np.min(freqs) >= min(FREQUENCIES_HZ):
+            raise HarmonicBalanceError("no solution at the first frequency (test)")
+        return real(params, amplitude_V, freqs, n_harmonics, realised, offset_V)
+
+    monkeypatch.setattr(classification, "sweep_for", starts_below_only)
+    entries = classify_records(UNLIKE, exp, noise_m=exp.sensor_noise_m)
+    assert (1200.0, 1200.0, 0.5 * min(FREQUENCIES_HZ)) in calls
+    assert [e["used"] for e in entries] == ["periodic"] * (1 + len(FREQUENCIES_HZ))
+
+    def never(params, amplitude_V, freqs, n_harmonics, realised=True, offset_V=0.0):
+        if offset_V:
+            raise HarmonicBalanceError("no solution (test)")
+        return real(params, amplitude_V, freqs, n_harmonics, realised, offset_V)
+
+    monkeypatch.setattr(classification, "sweep_for", never)
+    entries = classify_records(UNLIKE, exp, noise_m=exp.sensor_noise_m)
+    assert entries[0]["used"] == "periodic"
+    for e in entries[1:]:
+        assert e["used"] == "left out" and "could not be computed" in e["reason"] and "offset" in e["reason"]
