@@ -22,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import HarmonicBalanceError
+from ..errors import ContinuationError, HarmonicBalanceError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..solvers.collocation import periodic_interpolation_matrix, response_layout
@@ -68,17 +68,18 @@ def _candidates(sweep, f: float) -> list:
 
 def _group_sweep(params: MembraneParameters, amplitude_V: float, offset_V: float, freqs, n_harmonics: int) -> tuple:
     """(sweep, '') of one excitation's records (the kinds only), or (None, why) when the model's response cannot be
-    computed. A sweep whose first frequency does not solve (next to a fold: a planned second pass's records sit at
-    the resonance peak) starts again at half of it, from below, as a slow upward sweep reaches the records."""
+    computed. A sweep whose first frequency does not solve or whose continuation stalls (next to a fold: a planned
+    second pass's records sit at the resonance peak) starts again at half of it, from below, as a slow upward sweep
+    reaches the records."""
     freqs = np.asarray(freqs, float)
     try:
         return sweep_for(params, amplitude_V, freqs, n_harmonics, realised=False, offset_V=offset_V), ""
-    except HarmonicBalanceError:
+    except (HarmonicBalanceError, ContinuationError):
         pass
     try:
         return sweep_for(params, amplitude_V, np.r_[0.5 * freqs.min(), freqs], n_harmonics, realised=False,
                          offset_V=offset_V), ""
-    except HarmonicBalanceError as exc:
+    except (HarmonicBalanceError, ContinuationError) as exc:
         what = f"{amplitude_V:g} V" + (f" + {offset_V:g} V offset" if offset_V else "")
         return None, (f"the model's response to {what} could not be computed ({str(exc)[:160]}); classified again "
                       "after the next round of the fit")

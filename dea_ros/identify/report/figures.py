@@ -136,10 +136,11 @@ def plot_frequency(result: IdentificationResult, path: str | Path) -> Path | Non
                                         "samples)")
             lo, hi = band.peak_frequency_ci_Hz
             if np.isfinite(lo) and np.isfinite(hi):
+                # (the identified model's peak can lie outside its samples' interval: no bar on that side)
                 ax.errorbar([band.peak_frequency_Hz], [band.peak_d_rms_m * 1e3],
-                            xerr=[[band.peak_frequency_Hz - lo], [hi - band.peak_frequency_Hz]],
-                            yerr=[[(band.peak_d_rms_m - band.peak_d_rms_ci_m[0]) * 1e3],
-                                  [(band.peak_d_rms_ci_m[1] - band.peak_d_rms_m) * 1e3]],
+                            xerr=np.maximum([[band.peak_frequency_Hz - lo], [hi - band.peak_frequency_Hz]], 0.0),
+                            yerr=np.maximum([[(band.peak_d_rms_m - band.peak_d_rms_ci_m[0]) * 1e3],
+                                             [(band.peak_d_rms_ci_m[1] - band.peak_d_rms_m) * 1e3]], 0.0),
                             fmt="D", color="C0", ms=4, capsize=3, lw=0.8,
                             label=f"model peak, {100 * band.confidence:.0f} % interval")
         used = np.array(item.used)
