@@ -163,6 +163,12 @@ def adaptive_summary(bag, result) -> AdaptiveSummary | None:
     widths, corr = {}, {}
     if result.fisher_information() is not None:
         widths, corr = fit_widths(first_fit_from_result(result))
+    elif result.statistics is not None:
+        # no joint refinement to take them from (rejected: the two-stage result is reported): the reported
+        # intervals' relative half-widths
+        st = result.statistics
+        widths = {n: float((hi - lo) / 2.0 / abs(v)) if v else math.inf
+                  for n, v, lo, hi in zip(st.names, st.values, st.ci_low, st.ci_high)}
     meta = result.identification_metadata().get("parameters") or {}
     return AdaptiveSummary(records, plan, first, widths, corr, {k: dict(v) for k, v in meta.items()})
 
