@@ -107,10 +107,8 @@ def _json_float(value):
 def _sample_rate_Hz(result) -> float | None:
     """The sample rate of the first step record the result was fitted with (Hz), None without one (session 20:
     the planner assumed PlanLimits' 1 kHz for a rig sampled at 500 Hz; its expected widths were 1.3x narrow)."""
-    steps = getattr(getattr(result, "experiments", None), "steps", None) or []
-    if not steps or np.asarray(steps[0].time_s).size < 2:
-        return None
-    return float(1.0 / np.median(np.diff(np.asarray(steps[0].time_s, float))))
+    steps = result.experiments.steps
+    return float(1.0 / np.median(np.diff(steps[0].time_s))) if steps else None
 
 
 def plan_second_pass(first_result, base: Protocol, max_voltage_V: float | None = None) -> SecondPass:
@@ -166,9 +164,7 @@ def adaptive_summary(bag, result) -> AdaptiveSummary | None:
     elif result.statistics is not None:
         # no joint refinement to take them from (rejected: the two-stage result is reported): the reported
         # intervals' relative half-widths
-        st = result.statistics
-        widths = {n: float((hi - lo) / 2.0 / abs(v)) if v else math.inf
-                  for n, v, lo, hi in zip(st.names, st.values, st.ci_low, st.ci_high)}
+        widths = dict(zip(result.statistics.names, map(float, result.statistics.relative_ci)))
     meta = result.identification_metadata().get("parameters") or {}
     return AdaptiveSummary(records, plan, first, widths, corr, {k: dict(v) for k, v in meta.items()})
 

@@ -408,6 +408,7 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
     slope = "sigma_h'(1)_Pa" in names
     p = first.parameters
     noise = first.laser_noise_m
+    left = record.transient_left_m      # an unsettled record's leftover transient: an error beyond the noise
     static, steps, points, rms_sigma = None, [], [], []
     if record.kind == "sine":
         excitation = SinePeriodic(record.amplitude_V, record.frequency_Hz, record.offset_V) if record.offset_V \
@@ -417,7 +418,7 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
         rest_m = float(static_equilibrium(p.replace(mass_kg=record.mass_kg), 0.0).displacement_m)
         points = [FrequencyPoint(record.frequency_Hz, record.amplitude_V, 0.0, record.mass_kg, record.label(),
                                  periodic_input=excitation, rest_d0_m=rest_m)]
-        rms_sigma = [math.hypot(noise / math.sqrt(max(record.measured_samples, 1)), record.transient_left_m)]
+        rms_sigma = [math.hypot(noise / math.sqrt(max(record.measured_samples, 1)), left)]
     elif record.kind == "step":
         t = np.arange(0.0, limits.step_pre_s + limits.step_hold_s, 1.0 / limits.sample_rate_Hz)
         u = np.where(t < limits.step_pre_s, 0.0, record.final_V)
@@ -426,7 +427,6 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
         static = StaticData(np.array([record.mass_kg]), np.array([record.voltage_V]), np.zeros(1), record.label())
     static_sigma = first.static_sigma_m if math.isfinite(first.static_sigma_m) and first.static_sigma_m > 0 \
         else noise / math.sqrt(max(record.measured_samples, 1))
-    left = record.transient_left_m      # an unsettled record's leftover transient: an error beyond the noise
     obj = JointObjective(p, static, steps, points, math.hypot(static_sigma, left),
                          [math.hypot(noise, left)] * len(steps), rms_sigma, fit_curvature=curvature, fit_slope=slope)
     if obj.names != first.names:
