@@ -24,7 +24,9 @@ def _pct(w: float) -> str:
 def plan_text(plan) -> str:
     """The plan as text: the picks in order with their cost (with the hold before the measurement and the slowest
     time constant it comes from), then the widths before/after."""
-    lines = [f"experiment plan from {plan.source} (criterion {plan.criterion}, targets "
+    goal = f", first |correlation| eta1/eta2 <= {plan.max_correlation:g}" \
+        if plan.max_correlation is not None and plan.max_correlation < 1 else ""
+    lines = [f"experiment plan from {plan.source} (criterion {plan.criterion}{goal}, targets "
              f"{', '.join(plan.targets)}): {len(plan.picks)} records, {plan.total_s:.1f} s of the "
              f"{plan.budget_s:g} s budget, chosen among {plan.n_candidates} candidates"]
     for k, p in enumerate(plan.picks, 1):
@@ -58,10 +60,14 @@ def cmd_plan(args) -> int:
                         min_frequency_Hz=finite("--fmin", args.fmin, True),
                         max_frequency_Hz=finite("--fmax", args.fmax, True),
                         other_masses_kg=tuple(finite("--other-mass", m, True) for m in args.other_mass or ()))
+    max_correlation = finite("--max-correlation", args.max_correlation, True)
+    if max_correlation > 1:
+        raise CliError(f"--max-correlation: a correlation bound in (0, 1] (1: no correlation goal), got "
+                       f"{max_correlation:g}")
     first = read_input_file("--from", args.source, first_fit_from_file)
     targets = tuple(args.targets.split(",")) if args.targets else None
     plan = plan_experiments(first, budget, limits, targets=targets, criterion=args.criterion,
-                            max_records=args.max_records)
+                            max_records=args.max_records, max_correlation=max_correlation)
     if args.protocol_out and plan.picks:
         base = read_input_file("--protocol", args.protocol, load_protocol)
         proto = plan_protocol(plan, base, limits)
@@ -93,6 +99,9 @@ def register(sub) -> None:
                    "eta1_Pa_s, eta2_Pa_s, sigma_h''(1)_Pa)")
     p.add_argument("--criterion", choices=("widths", "A"), default="widths",
                    help="widths: sum of ln widths (default); A: sum of squared widths (the widest dominate)")
+    p.add_argument("--max-correlation", type=float, default=0.9, metavar="R",
+                   help="first bring the expected eta1/eta2 |correlation| to at most R, then shrink the widths "
+                        "(default 0.9; 1: no correlation goal)")
     p.add_argument("--protocol", default="paper", metavar="NAME_OR_YAML",
                    help="the first pass's protocol (mass, membrane) for --protocol-out (default paper)")
     p.add_argument("--protocol-out", metavar="YAML", help="write the picks as a protocol the identifier node runs")

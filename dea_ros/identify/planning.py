@@ -24,6 +24,14 @@ target parameters (default: eps_r, k1, eta1, eta2, sigma_h''(1)):
   eta1/eta2 trade-off is broken as eagerly as the curvature is pinned;
 * ``A``: sum of width^2 -- the widest intervals dominate.
 
+A correlation goal comes first (``max_correlation``, default 0.9, for the pairs of
+``CORRELATION_GOAL_PAIRS``: eta1/eta2, the viscous trade-off of a fast creep): while the expected
+|correlation| of such a pair is above it, the pick is the record that lowers it most per second; once it
+is at or below, the criterion picks among the records that keep it there. Neither criterion aims at a
+correlation: on the fast-creep membranes of the coverage family (F08, F11: creep 0.07-0.17 s) they left
+it at 0.92-0.96 where a low-frequency offset sine or a step brings it under 0.9 at the same time and
+nearly the same widths (session 21). ``max_correlation=None`` (or 1) switches the goal off.
+
 The result (:class:`ExperimentPlan`) holds the picks with the expected widths after each, and the
 widths and the eta1/eta2 correlation before and after; :func:`plan_protocol` turns the picks into
 protocol segments the identifier node runs (:mod:`~dea_ros.identify.protocols`).
@@ -63,7 +71,7 @@ from .protocols import Protocol
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
            "first_fit_from_result", "fit_widths", "candidate_records", "candidate_information", "plan_experiments",
            "plan_protocol", "step_rest_s", "record_settle", "sine_record_cost", "PlanningError", "MIN_DECREASE",
-           "DEFAULT_TARGETS", "WIDTH_CAP", "T95"]
+           "DEFAULT_TARGETS", "WIDTH_CAP", "T95", "CORRELATION_GOAL_PAIRS", "DEFAULT_MAX_CORRELATION"]
 
 DEFAULT_TARGETS = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s", "sigma_h''(1)_Pa")
 #: relative 95 % half-width a direction no record sees counts as (100 x the value)
@@ -73,6 +81,9 @@ T95 = 1.96
 #: A: this fraction of the criterion before the plan)
 MIN_DECREASE = 1e-3
 _LOG_NAMES = ("k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
+#: pairs the correlation goal of :func:`plan_experiments` applies to (both must be fitted)
+CORRELATION_GOAL_PAIRS = (("eta1_Pa_s", "eta2_Pa_s"),)
+DEFAULT_MAX_CORRELATION = 0.9
 
 
 @dataclass(frozen=True)
@@ -260,13 +271,15 @@ class ExperimentPlan:
     n_candidates: int
     source: str = ""
     notes: list = field(default_factory=list)
+    max_correlation: float | None = None   # the correlation goal the plan was made with (None: none)
 
     @property
     def total_s(self) -> float:
         return float(sum(p.record.duration_s for p in self.picks))
 
     def to_dict(self) -> dict:
-        return {"source": self.source, "criterion": self.criterion, "budget_s": self.budget_s,
+        return {"source": self.source, "criterion": self.criterion, "max_correlation": self.max_correlation,
+                "budget_s": self.budget_s,
                 "total_s": self.total_s, "targets": list(self.targets), "candidates": self.n_candidates,
                 "relative_ci95_before": dict(self.widths_before), "relative_ci95_after": dict(self.widths_after),
                 "correlation_before": dict(self.correlation_before),
@@ -483,6 +496,18 @@ def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
     return out
 
 
+def _goal_correlation(first: FirstFit, info_rel: np.ndarray, pairs) -> float:
+    """The largest |correlation| among ``pairs`` (index pairs) at ``info_rel`` (0 without pairs)."""
+    if not pairs:
+        return 0.0
+    cov = np.linalg.pinv(info_rel, rcond=SINGULAR_EIGENVALUE_RATIO)
+    worst = 0.0
+    for i, j in pairs:
+        den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
+        worst = max(worst, abs(float(cov[i, j] / den)) if den > 0 else 0.0)
+    return worst
+
+
 def fit_widths(first: FirstFit) -> tuple:
     """(relative 95 % half-widths, pair correlations) of a fit from its own Fisher information (the planner's
     "before"; of a two-pass fit: the realised widths, comparable with a plan's expected ones)."""
@@ -493,14 +518,18 @@ def fit_widths(first: FirstFit) -> tuple:
 
 def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits | None = None,
                      candidates=None, targets=None, criterion: str = "widths", max_records: int = 12,
-                     information=None) -> ExperimentPlan:
+                     information=None, max_correlation: float | None = DEFAULT_MAX_CORRELATION) -> ExperimentPlan:
     """Greedy Fisher-information plan (module docstring): the records that shrink the target intervals
-    most per second of experiment time, within ``budget_s`` seconds. ``information``: precomputed
+    most per second of experiment time, within ``budget_s`` seconds, the correlation goal
+    (``max_correlation`` for ``CORRELATION_GOAL_PAIRS``) first. ``information``: precomputed
     :func:`candidate_information` (then ``candidates`` is ignored)."""
     if not (isinstance(budget_s, (int, float)) and math.isfinite(budget_s) and budget_s > 0):
         raise PlanningError(f"budget_s must be a positive number of seconds, got {budget_s!r}")
     if criterion not in ("widths", "A"):
         raise PlanningError(f"criterion must be 'widths' or 'A', got {criterion!r}")
+    if max_correlation is not None and not (isinstance(max_correlation, (int, float)) and 0 < max_correlation <= 1):
+        raise PlanningError(f"max_correlation must lie in (0, 1] (1 or None: no correlation goal), got "
+                            f"{max_correlation!r}")
     limits = limits or PlanLimits()
     targets = tuple(n for n in (targets or DEFAULT_TARGETS) if n in first.names)
     if not targets:
@@ -517,27 +546,45 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     scale = first.scale()
     info = first.information * np.outer(scale, scale)
     before = _widths(first, info)
+    goal = 1.0 if max_correlation is None else float(max_correlation)
+    pairs = [(first.names.index(a), first.names.index(b)) for a, b in CORRELATION_GOAL_PAIRS
+             if a in first.names and b in first.names] if goal < 1.0 else []
     picks, used, spent = [], set(), 0.0
     current = _criterion(before, idx, criterion)
     threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
     while len(picks) < max_records:
+        correlation = _goal_correlation(first, info, pairs)
+        decorrelate = correlation > goal     # the goal first (module docstring)
         best = None
         for k, (c, g) in enumerate(information):
             if k in used or spent + c.duration_s > budget_s + 1e-9:
                 continue
-            gain = current - _criterion(_widths(first, info + g), idx, criterion)
-            if gain > threshold and (best is None or gain / c.duration_s > best[0]):
-                best = (gain / c.duration_s, gain, k)
+            value = _criterion(_widths(first, info + g), idx, criterion)
+            after_correlation = _goal_correlation(first, info + g, pairs)
+            if decorrelate:
+                gain, enough = correlation - after_correlation, MIN_DECREASE
+            elif after_correlation > goal:
+                continue
+            else:
+                gain, enough = current - value, threshold
+            if gain > enough and (best is None or gain / c.duration_s > best[0]):
+                best = (gain / c.duration_s, k, value)
+        if best is None and decorrelate:
+            goal = 1.0                       # nothing lowers it: the criterion alone from here
+            names = ", ".join(f"{a}/{b}" for a, b in CORRELATION_GOAL_PAIRS)
+            notes.append(f"no record within the budget lowers the {names} correlation below {max_correlation:g} "
+                         f"(expected {correlation:.3f}); planned for the widths alone")
+            continue
         if best is None:
             break
-        rate, gain, k = best
+        rate, k, value = best
         c, g = information[k]
         info = info + g
         used.add(k)
         spent += c.duration_s
-        current -= gain
+        gain, current = current - value, value
         after = _widths(first, info)
-        picks.append(PlannedRecord(c, gain, rate, dict(zip(first.names, map(float, after)))))
+        picks.append(PlannedRecord(c, gain, gain / c.duration_s, dict(zip(first.names, map(float, after)))))
     after = _widths(first, info)
     cheapest = min((c for c, _g in information), key=lambda c: c.duration_s)
     if not picks and cheapest.duration_s > budget_s:
@@ -551,7 +598,8 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     return ExperimentPlan(first.names, targets, criterion, float(budget_s), dict(zip(first.names, map(float, before))),
                           dict(zip(first.names, map(float, after))),
                           _correlations(first, first.information * np.outer(scale, scale)),
-                          _correlations(first, info), picks, len(information), first.source, notes)
+                          _correlations(first, info), picks, len(information), first.source, notes,
+                          None if max_correlation is None else float(max_correlation))
 
 
 def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | None = None) -> Protocol:

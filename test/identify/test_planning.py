@@ -207,9 +207,53 @@ def test_cli_plan_text_json_protocol_and_exit_codes(first, tmp_path, capsys):
                           (["--from", path, "--budget-s", "-3"], "--budget-s"),
                           (["--from", path, "--max-voltage", "nan"], "--max-voltage"),
                           (["--from", path, "--fmin", "50"], "min_frequency_Hz"),
-                          (["--from", path, "--targets", "nonsense"], "target")):
+                          (["--from", path, "--targets", "nonsense"], "target"),
+                          (["--from", path, "--max-correlation", "1.5"], "--max-correlation"),
+                          (["--from", path, "--max-correlation", "0"], "--max-correlation")):
         assert program.main(["plan"] + argv) == 2, argv
         assert message in capsys.readouterr().err, argv
+
+
+def _trade_off_case(fit):
+    """A known answer: eta1 and eta2 correlated 0.99 (information in relative units), and two 10 s records --
+    one pins k1 (a large decrease of the widths criterion, the eta1/eta2 correlation untouched), the other adds
+    a little information along eta1 - eta2 (a smaller decrease, the correlation 0.99 -> 0.895)."""
+    names, n = fit.names, len(fit.names)
+    i1, i2, ik = names.index("eta1_Pa_s"), names.index("eta2_Pa_s"), names.index("k1_Pa")
+    rel = np.eye(n) * 1e4
+    rel[np.ix_([i1, i2], [i1, i2])] = 1e4 * np.array([[1.0, 0.99], [0.99, 1.0]])
+    scale = fit.scale()
+    crafted = dataclasses.replace(fit, information=rel / np.outer(scale, scale))
+    pins_k1 = np.zeros((n, n))
+    pins_k1[ik, ik] = 1e8
+    v = np.zeros(n)
+    v[i1], v[i2] = 1.0, -1.0
+    separates = 0.05 * 1e4 * np.outer(v, v)
+    k1_record = CandidateRecord("step", 10.0, fit.parameters.mass_kg, final_V=2500.0)
+    sine = CandidateRecord("sine", 10.0, fit.parameters.mass_kg, 1.0, 1250.0, 1250.0, measured_samples=2000)
+    return crafted, [(k1_record, pins_k1), (sine, separates)]
+
+
+def test_the_correlation_goal_comes_first_then_the_widths(first):
+    fit, info = _trade_off_case(first["fit"])
+    # the widths alone: the k1 record (its decrease per second is larger); the goal first: the separating sine
+    plain = plan_experiments(fit, 10.0, LIMITS, information=info, max_correlation=None)
+    assert [p.record.kind for p in plain.picks] == ["step"]
+    assert abs(plain.correlation_after["eta1/eta2"]) > 0.98
+    goal = plan_experiments(fit, 10.0, LIMITS, information=info)
+    assert [p.record.kind for p in goal.picks] == ["sine"] and goal.max_correlation == 0.9
+    assert abs(goal.correlation_after["eta1/eta2"]) == pytest.approx(0.94 / 1.05, rel=1e-6)
+    assert goal.to_dict()["max_correlation"] == 0.9
+    # with time for both: the goal, then the widths (the k1 record keeps the correlation at the goal)
+    both = plan_experiments(fit, 20.0, LIMITS, information=info)
+    assert [p.record.kind for p in both.picks] == ["sine", "step"]
+    assert all(p.criterion_decrease > 0 for p in both.picks)
+    # nothing lowers it: the plan says so and plans for the widths
+    alone = plan_experiments(fit, 20.0, LIMITS, information=info[:1])
+    assert [p.record.kind for p in alone.picks] == ["step"]
+    assert any("lowers the eta1_Pa_s/eta2_Pa_s correlation below 0.9" in n for n in alone.notes), alone.notes
+    with pytest.raises(PlanningError, match="max_correlation"):
+        plan_experiments(fit, 20.0, LIMITS, information=info, max_correlation=1.2)
 
 
 def test_an_unknown_direction_is_bounded_not_infinite(first):
