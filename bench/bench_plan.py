@@ -35,7 +35,12 @@ membrane, static points at the family's other masses, each run's noise seed from
 
 ``--data orbit``: sessions 9-19's runs (synth.synthesize_experiments, the list above).
 
-Run: python bench/bench_plan.py [--membranes 3] [--seeds 2] [--members F00,F01] [--data held]
+``--reach`` (session 21): how far any second pass could go, by the planner's expected widths from the
+family's first pass (``one_reach``): the node's plan, a plan aimed at sigma_h''(1) alone (both within the
+budget) and every candidate record repeated 100 times (the information the rig's candidate set at the
+dynamic mass holds; ~100 x the budget).
+
+Run: python bench/bench_plan.py [--membranes 3] [--seeds 2] [--members F00,F01] [--data held] [--reach]
 [--jsonl bench/results/plan.jsonl] (appends one JSON line per run; --table-only tabulates).
 """
 from __future__ import annotations
@@ -60,8 +65,9 @@ from machine_info import machine  # noqa: E402
 from dea_ros.errors import IntegrationError, PlanningError  # noqa: E402
 from dea_ros.identify.adaptive import plan_second_pass  # noqa: E402
 from dea_ros.identify.pipeline import identify  # noqa: E402
-from dea_ros.identify.planning import (PlanLimits, first_fit_from_result, plan_experiments,  # noqa: E402
-                                       sine_record_cost, step_rest_s)
+from dea_ros.identify.planning import (PlanLimits, candidate_information, candidate_records,  # noqa: E402
+                                       first_fit_from_result, fit_widths, plan_experiments, sine_record_cost,
+                                       step_rest_s)
 from dea_ros.identify.synth import DEFAULT_STATIC_MASSES_KG, synthesize_experiments  # noqa: E402
 from dea_ros.identify.synth_rig import RecordedPass, passes_experiments, record_protocol, rig_protocol  # noqa: E402
 from dea_ros.sim.plant import LASER_QUANTISATION_M  # noqa: E402
@@ -78,7 +84,8 @@ def _synth(p, seed: int, freqs, **kw):
 
 def _summary(p, res, exp_time_s: float) -> dict:
     st = res.statistics
-    out = {"experiment_s": exp_time_s, "curvature_status": res.curvature_status, "params": {}}
+    out = {"experiment_s": exp_time_s, "curvature_status": res.curvature_status, "params": {},
+           "shape_freed": any("refined with the whole shape free" in w for w in res.warnings)}
     for n in NAMES:
         if n not in st.names:
             continue
@@ -146,6 +153,16 @@ def _hold_s(protocol) -> float:
     return max(float(seg.get(k, 0.0)) for seg in protocol.raw_segments for k in ("settle_s", "hold_s"))
 
 
+def _held_protocols(p, f_r: float) -> tuple:
+    """(the one-pass protocol, the paper-set protocol, the adaptive first pass, the second pass's budget s)."""
+    one_proto = rig_protocol(p, seventeen(f_r))
+    paper_proto = rig_protocol(p, PAPER_HZ)
+    budget = one_proto.duration_s() - paper_proto.duration_s()
+    first_proto = dataclasses.replace(paper_proto, adaptive=True, adaptive_budget_s=budget,
+                                      adaptive_max_settle_s=_hold_s(paper_proto))
+    return one_proto, paper_proto, first_proto, budget
+
+
 def one_run_held(p, f_r: float, seed: int) -> dict:
     """One pass against two as identifier_node runs them (module docstring, ``--data held``)."""
     run_seed = noise_seed(p.name, seed)
@@ -153,11 +170,7 @@ def one_run_held(p, f_r: float, seed: int) -> dict:
     others = {"other_masses_kg": DEFAULT_STATIC_MASSES_KG}
     base = {"membrane": p.name, "seed": seed, "data": "held", "noise_seed": run_seed, "creep_s": p.eta1_Pa_s / p.k1_Pa,
             "f_r_Hz": f_r, "sigma2_true_Pa": truth(p, "sigma_h''(1)_Pa")}
-    one_proto = rig_protocol(p, seventeen(f_r))
-    paper_proto = rig_protocol(p, PAPER_HZ)
-    budget = one_proto.duration_s() - paper_proto.duration_s()
-    first_proto = dataclasses.replace(paper_proto, adaptive=True, adaptive_budget_s=budget,
-                                      adaptive_max_settle_s=_hold_s(paper_proto))
+    one_proto, paper_proto, first_proto, budget = _held_protocols(p, f_r)
     t0 = time.perf_counter()
     try:
         one_rec = record_protocol(p, one_proto, run_seed, **kw)
@@ -190,6 +203,63 @@ def one_run_held(p, f_r: float, seed: int) -> dict:
             "plan": [pk.record.label() for pk in plan.picks], "plan_total_s": plan.total_s, "budget_s": budget,
             "predicted_after": {n: plan.widths_after.get(n) for n in NAMES},
             "wall_s": {"one_pass": t1 - t0, "first_and_plan": t2 - t1, "second": t3 - t2}}
+
+
+#: what --reach reports: the expected sigma_h''(1) half-width and |corr(eta1, eta2)| of these plans
+REACH_CASES = ("node's plan", "curvature only", "every candidate x100")
+S2 = "sigma_h''(1)_Pa"
+
+
+def one_reach(p, f_r: float, seed: int) -> dict:
+    """How far a second pass can shrink sigma_h''(1) (and the eta1/eta2 correlation), by the planner's own
+    expected widths from the family's first pass (``--reach``): the node's plan at the budget, a plan aimed at
+    sigma_h''(1) alone at the budget, and every candidate record repeated 100 times (the information limit of
+    the rig's candidate set at the dynamic mass; ~100 x the budget)."""
+    run_seed = noise_seed(p.name, seed)
+    kw = {"noise_m": 1e-6, "quantisation_m": LASER_QUANTISATION_M}
+    base = {"membrane": p.name, "seed": seed, "data": "reach", "creep_s": p.eta1_Pa_s / p.k1_Pa, "f_r_Hz": f_r}
+    _one, _paper, first_proto, budget = _held_protocols(p, f_r)
+    try:
+        rec = record_protocol(p, first_proto, run_seed, **kw)
+        first = identify(passes_experiments(p, [RecordedPass(first_proto, rec)], run_seed, **kw,
+                                            other_masses_kg=DEFAULT_STATIC_MASSES_KG), evaluate_fit=False)
+        second = plan_second_pass(first, first_proto)
+    except (IntegrationError, PlanningError) as exc:
+        return {**base, "error": str(exc)}
+    fit = first_fit_from_result(first)
+    info, _notes = candidate_information(fit, candidate_records(fit.parameters, second.limits), second.limits)
+    scale = fit.scale()
+    every = fit.information + 100.0 * sum(g for _c, g in info) / np.outer(scale, scale)
+    limit_widths, limit_corr = fit_widths(dataclasses.replace(fit, information=every))
+    only = plan_experiments(fit, budget, second.limits, targets=(S2,), information=info)
+    cases = {"node's plan": (second.plan.widths_after, second.plan.correlation_after),
+             "curvature only": (only.widths_after, only.correlation_after),
+             "every candidate x100": (limit_widths, limit_corr)}
+    return {**base, "budget_s": budget, "before": {"s2": second.plan.widths_before.get(S2),
+                                                   "corr": second.plan.correlation_before.get("eta1/eta2")},
+            "reach": {k: {"s2": w.get(S2), "corr": c.get("eta1/eta2")} for k, (w, c) in cases.items()}}
+
+
+def reach_text(records: list) -> str:
+    """The --reach table: per run the expected sigma_h''(1) half-width and |corr(eta1, eta2)| by case, and how
+    many runs each case brings within 10 % / below 0.9."""
+    ok = [r for r in records if "reach" in r]
+    out = [f"Machine: {machine()}", "", f"{len(ok)} runs (failed: {len(records) - len(ok)})", "",
+           "| membrane, seed | creep s | budget s | sigma_h''(1) 95 % half-width: first / " + " / ".join(REACH_CASES)
+           + " | abs corr(eta1, eta2): first / " + " / ".join(REACH_CASES) + " |", "|---|---|---|---|---|"]
+
+    def pct(w):
+        return "inf" if w is None or not np.isfinite(w) else f"{w * 100:.3g} %"
+    for r in ok:
+        out.append(f"| {r['membrane']}, {r['seed']} | {r['creep_s']:.2g} | {r['budget_s']:.0f} | "
+                   + " / ".join(pct(v) for v in [r["before"]["s2"]] + [r["reach"][k]["s2"] for k in REACH_CASES])
+                   + " | " + " / ".join(f"{abs(v):.2f}" for v in [r["before"]["corr"]]
+                                        + [r["reach"][k]["corr"] for k in REACH_CASES]) + " |")
+    for k in REACH_CASES:
+        s2 = sum(r["reach"][k]["s2"] is not None and r["reach"][k]["s2"] <= 0.1 for r in ok)
+        c = sum(abs(r["reach"][k]["corr"]) < 0.9 for r in ok)
+        out.append(f"\n{k}: expected sigma_h''(1) half-width <= 10 % in {s2}/{len(ok)}, |corr| < 0.9 in {c}/{len(ok)}")
+    return "\n".join(out) + "\n"
 
 
 def _row(rs, key: str, n: str) -> str:
@@ -252,8 +322,8 @@ def resume_runs(path: Path, members, seeds: int, one_run) -> list:
             with path.open("a") as fh:
                 fh.write(json.dumps(rec) + "\n")
             head = f"plan {rec.get('plan')} ({rec.get('plan_total_s', 0):.0f} of {rec.get('budget_s', 0):.0f} s), "
-            print(f"{p.name} seed {seed}: " + (head + f"wall {rec['wall_s']}" if "two" in rec else rec["error"]),
-                  file=sys.stderr, flush=True)
+            tail = head + f"wall {rec['wall_s']}" if "two" in rec else rec.get("reach", rec.get("error"))
+            print(f"{p.name} seed {seed}: {tail}", file=sys.stderr, flush=True)
     return done
 
 
@@ -279,10 +349,16 @@ def main() -> None:
     ap.add_argument("--data", default="held", choices=("held", "orbit"),
                     help="held: the rig's runs and identifier_node's adaptive pass (module docstring); orbit: "
                          "synth's records (sessions 9-19)")
+    ap.add_argument("--reach", action="store_true",
+                    help="instead: how far a second pass can shrink sigma_h''(1) and the eta1/eta2 correlation, by "
+                         "the planner's expected widths (one_reach)")
     args = ap.parse_args()
     only = [m for m in args.members.split(",") if m]
     members = [] if args.table_only else [(p, f_r) for p, f_r in family(max(args.membranes, 20 if only else 0))
                                           if not only or p.name in only]
+    if args.reach:
+        print(reach_text(resume_runs(Path(args.jsonl), members, args.seeds, one_reach)))
+        return
     print(runs_text(resume_runs(Path(args.jsonl), members, args.seeds,
                                 one_run_held if args.data == "held" else one_run)))
 

@@ -38,6 +38,12 @@ its value; otherwise the result says so (``curvature_identified`` False) and the
 (the pipeline writes it flagged "poorly determined" while its sign is known, else the base value).
 The four combinations are matched exactly by the (beta, gamma) closest to the
 base parameters' (or, without them, to the start's), as in the static fit's representation.
+
+That holds the two remaining directions of the Ogden shape (the fourth and fifth derivatives at s = 1) at
+the base's. Where the data are precise enough to see them, that guess steers the others (the coverage
+family's F13 with two passes: sigma_h''(1) +5 % at z +17, eps_r, eta1 and eta2 at z +1.8..+2.7; with the
+truth's shape every |z| <= 1.6). ``fit_curvature="shape"`` frees them too (all six Ogden coefficients);
+:func:`held_shape_test` says when the data call for it, and :mod:`~.refinement` then refits.
 """
 from __future__ import annotations
 
@@ -48,6 +54,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import numpy as np
+from scipy import stats as scipy_stats
 from scipy.optimize import least_squares
 
 from ..model.equilibrium import NoEquilibriumError, static_equilibrium
@@ -58,22 +65,27 @@ from .dynamic_fit import PARAMETER_BOUNDS
 from .experiments import StaticData, StepData, estimate_noise_m
 from .frequency_points import FrequencyPoint, periodic_rms_gradient, point_solution, rms_reference_m
 from .metrics import ParameterStatistics, parameter_statistics
-from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation, static_displacement_jacobian
+from .static_fit import (EXTENDED_COMBINATION_MATRIX, SHAPE_COMBINATION_MATRIX, STRESS_NAMES, OgdenRepresentation,
+                         static_displacement_jacobian)
 from .step_simulation import step_solver
 from ..errors import JointFitError
 
 LOG = logging.getLogger("dea_ros.identify")
 
 __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError",
-           "CURVATURE_REL_CI_LIMIT", "JOINT_NAMES", "CURVATURE_BOUND_PA"]
+           "CURVATURE_REL_CI_LIMIT", "JOINT_NAMES", "CURVATURE_BOUND_PA", "MATERIAL_NAMES",
+           "ShapeTest", "held_shape_test", "SHAPE_TEST_LEVEL"]
 
 #: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
 CURVATURE_REL_CI_LIMIT = 0.5
 #: Names of the joint parameters (the curvature terms sigma_h''(1), sigma_h'''(1) only when fitted).
-JOINT_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa", "eps_r", "k1_Pa",
-               "eta1_Pa_s", "eta2_Pa_s")
-_UNITS = (1e5, 1e5, 1e6, 1e7)   # optimizer units of the stress combinations (Pa)
-_STRESS_BOUND = (np.inf, np.inf, 5e8, 5e9)   # |sigma_h''(1)|, |sigma_h'''(1)| bounds of the search (Pa)
+#: The material parameters (after the stress combinations, static_fit.STRESS_NAMES).
+MATERIAL_NAMES = ("eps_r", "k1_Pa", "eta1_Pa_s", "eta2_Pa_s")
+JOINT_NAMES = STRESS_NAMES[:4] + MATERIAL_NAMES
+_UNITS = (1e5, 1e5, 1e6, 1e7, 1e8, 1e9)   # optimizer units of the stress combinations (Pa)
+_STRESS_BOUND = (np.inf, np.inf, 5e8, 5e9, np.inf, np.inf)   # |sigma_h''(1)|, |sigma_h'''(1)| search bounds (Pa)
+#: :func:`held_shape_test` calls for the free shape below this p-value
+SHAPE_TEST_LEVEL = 0.01
 #: |sigma_h''(1)| bound of the search (Pa, derivative in s): the plausible range of the curvature.
 CURVATURE_BOUND_PA = _STRESS_BOUND[2]
 
@@ -102,6 +114,7 @@ class JointFitResult:
     #: k1, eta1, eta2), one row per residual; ``row_records`` names the record of each row
     jacobian: np.ndarray | None = None
     row_records: tuple = ()
+    residuals: np.ndarray | None = None    # the weighted residuals there, rows as ``jacobian``
 
     @property
     def fit_frequencies_Hz(self) -> np.ndarray:
@@ -126,7 +139,7 @@ class JointObjective:
 
     def __init__(self, start: MembraneParameters, static: StaticData | None, steps: Sequence[StepData],
                  points: Sequence[FrequencyPoint], static_sigma_m, step_sigmas_m, point_sigmas_m,
-                 prior_beta_gamma=None, fit_curvature: bool = True, n_harmonics: int = 8,
+                 prior_beta_gamma=None, fit_curvature: bool | str = True, n_harmonics: int = 8,
                  fit_slope: bool = True):
         self.start = start
         self.static = static
@@ -141,15 +154,19 @@ class JointObjective:
         prior = start_bg if prior_beta_gamma is None else np.asarray(prior_beta_gamma, float)
         # four combinations matched exactly, the two remaining Ogden directions held closest to the
         # base parameters (or to the start's representation without base parameters)
-        self.rep = OgdenRepresentation(start.prestretch, 4, prior, matrix=EXTENDED_COMBINATION_MATRIX)
+        # ("shape": all six, the representation exact)
+        self.matrix = SHAPE_COMBINATION_MATRIX if fit_curvature == "shape" else EXTENDED_COMBINATION_MATRIX
+        self.rep = OgdenRepresentation(start.prestretch, len(self.matrix), prior, matrix=self.matrix)
         self.fit_curvature = fit_curvature
-        self.combos0 = EXTENDED_COMBINATION_MATRIX @ start_bg
+        self.combos0 = self.matrix @ start_bg
         first = [0, 1] if fit_slope else [0]       # sigma_h'(1) held when the static data cannot see it
         if fit_curvature == "third":       # sigma_h''(1) held at the start's value, sigma_h'''(1) free
             self.stress_index = first + [3]
+        elif fit_curvature == "shape":
+            self.stress_index = first + [2, 3, 4, 5]
         else:
             self.stress_index = first + ([2, 3] if fit_curvature else [])
-        self.names = tuple(JOINT_NAMES[i] for i in self.stress_index) + JOINT_NAMES[4:]
+        self.names = tuple(STRESS_NAMES[i] for i in self.stress_index) + MATERIAL_NAMES
         gain = self.rep.gain                                         # (6, 4)
         self.directions = gain[:, self.stress_index].T               # (q, 6) per Pa of each combination
         self.solvers = [step_solver(start, s) for s in self.steps]
@@ -295,7 +312,7 @@ def fit_joint(
     static_sigma_m,   # m: one value, or one per static point
     noise_m: float | None = None,
     prior_beta_gamma=None,
-    fit_curvature: bool = True,
+    fit_curvature: bool | str = True,
     fit_slope: bool = True,
     curvature_fallback_Pa: float | None = None,
     n_harmonics: int = 8,
@@ -310,7 +327,8 @@ def fit_joint(
     ``points`` are the frequency points with their ``kind`` (periodic or period-doubled; leave the
     quasi-periodic ones out) and ``measured_std_m`` (None: estimated from the residuals of a first
     pass). ``fit_curvature``: include sigma_h''(1) and sigma_h'''(1) (when sine data exist); "third":
-    only sigma_h'''(1), sigma_h''(1) held at the start's value. ``curvature_fallback_Pa``:
+    only sigma_h'''(1), sigma_h''(1) held at the start's value; "shape": the whole Ogden shape (the fourth
+    and fifth derivatives too, module docstring). ``curvature_fallback_Pa``:
     the value the caller will write when it is not identified (reported only). ``curvature_from_static``:
     the static points determine sigma_h''(1) (:func:`~.static_fit.static_curvature_test`), so the curvature
     terms are fitted even without sine records (held, they would bias the others).
@@ -408,6 +426,49 @@ def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
                          method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_evaluations)
 
 
+@dataclass(frozen=True)
+class ShapeTest:
+    """The score test of the Ogden shape a joint fit holds (the fourth and fifth derivatives of sigma_h at
+    s = 1, :func:`held_shape_test`)."""
+
+    statistic: float        # the chi-square decrease a Gauss-Newton step with them free predicts, over s^2
+    dof: int                # the held directions (2)
+    p_value: float
+
+    @property
+    def rejects(self) -> bool:
+        """The data contradict the held shape (p below ``SHAPE_TEST_LEVEL``)."""
+        return self.p_value < SHAPE_TEST_LEVEL
+
+    def as_dict(self) -> dict:
+        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value, "rejects": self.rejects}
+
+
+def held_shape_test(fit: JointFitResult, shape: JointFitResult) -> ShapeTest:
+    """Does the shape ``fit`` holds steer it? ``fit``: a joint fit (four stress combinations at most);
+    ``shape``: the joint objective with the whole shape free, evaluated at ``fit``'s parameters, not
+    minimised (:func:`fit_joint` with ``fit_curvature="shape"``, ``minimise=False``): the same residuals, with
+    the held directions' columns beside the fitted ones. The score (Lagrange multiplier) statistic: the
+    decrease of chi-square the linearised model predicts when the held directions are freed, over s^2 =
+    chi^2 / dof of ``fit``; chi-square distributed with as many degrees of freedom as directions held."""
+    r = np.asarray(shape.residuals, float)
+    jac = np.asarray(shape.jacobian, float)
+    norms = np.linalg.norm(jac, axis=0)
+    jac = jac / np.where(norms > 0, norms, 1.0)
+    kept = [k for k, n in enumerate(shape.names) if n in fit.names]
+
+    def explained(columns) -> float:
+        coef, *_ = np.linalg.lstsq(jac[:, columns], r, rcond=None)
+        fitted = jac[:, columns] @ coef
+        return float(fitted @ fitted)
+
+    s2 = fit.cost / max(fit.dof, 1)
+    decrease = max(explained(list(range(jac.shape[1]))) - explained(kept), 0.0)
+    dof = len(shape.names) - len(kept)
+    statistic = decrease / s2 if s2 > 0 else math.inf
+    return ShapeTest(float(statistic), dof, float(scipy_stats.chi2.sf(statistic, dof)))
+
+
 def _scatter_sigma(objective: JointObjective, theta, point_s) -> float:
     """The standard deviation of the RMS values about the fit at ``theta`` (m)."""
     n_f = len(point_s)
@@ -435,7 +496,7 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
     jac_phys = objective.physical_jacobian(sol.x)
     params = objective.parameters(sol.x)
     q = len(objective.stress_index)
-    combos = EXTENDED_COMBINATION_MATRIX @ np.r_[params.beta_Pa, params.gamma_Pa]
+    combos = objective.matrix @ np.r_[params.beta_Pa, params.gamma_Pa]
     values = np.r_[[combos[i] for i in objective.stress_index], params.relative_permittivity,
                    params.k1_Pa, params.eta1_Pa_s, params.eta2_Pa_s]
     stats = parameter_statistics(jac_phys, res, objective.names, values,
@@ -456,7 +517,7 @@ def _joint_result(objective: JointObjective, sol, lo, hi, sigmas: dict, warnings
         warnings.append(f"joint refinement: {', '.join(at_bound)} ended at the search bound")
     dof = max(res.size - len(values), 1)
     return JointFitResult(
-        jacobian=jac_phys, row_records=_row_records(objective),
+        jacobian=jac_phys, row_records=_row_records(objective), residuals=np.asarray(res, float),
         parameters=params, statistics=stats, names=objective.names,
         curvature_fitted="sigma_h''(1)_Pa" in objective.names,
         curvature_identified=identified,

@@ -119,6 +119,7 @@ class _Run:
     curvature_identified: bool | None = None
     curvature_status: str = "not fitted"
     curvature_sensitivity: Any = None                      # CurvatureSensitivity (not identified)
+    shape_test: Any = None                                 # joint_fit.ShapeTest of the refinement
 
 
 # --------------------------------------------------------------------------- stages
@@ -258,6 +259,7 @@ def _refinement_stage(run: _Run) -> None:
         run.warnings += rounds.warnings
         run.params, run.classification, run.joint = rounds.parameters, rounds.classification, rounds.joint
         run.two_stage_linearisation = rounds.two_stage_linearisation
+        run.shape_test = rounds.shape_test
         run.timings["joint_fit"] = time.perf_counter() - t0
         if rounds.joint is not None:
             run.warnings += rounds.joint.warnings
@@ -379,4 +381,4 @@ def identify(experiments: ExperimentSet, options: IdentificationOptions | None =
                                 curvature_identified=run.curvature_identified,
                                 curvature_written_Pa=curvature_written, curvature_status=run.curvature_status,
                                 uncertainty=bands, determination=_determination(run),
-                                curvature_sensitivity=run.curvature_sensitivity)
+                                curvature_sensitivity=run.curvature_sensitivity, shape_test=run.shape_test)

@@ -417,7 +417,8 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
     """The joint refinement's objective over this one record (the data are placeholders: only the
     Jacobian is used), parametrised as the first fit."""
     names = first.names
-    curvature = True if "sigma_h''(1)_Pa" in names else ("third" if "sigma_h'''(1)_Pa" in names else False)
+    curvature = "shape" if "sigma_h''''(1)_Pa" in names else True if "sigma_h''(1)_Pa" in names else (
+        "third" if "sigma_h'''(1)_Pa" in names else False)
     slope = "sigma_h'(1)_Pa" in names
     p = first.parameters
     noise = first.laser_noise_m

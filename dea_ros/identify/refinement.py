@@ -27,7 +27,7 @@ from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points, leave_out_for_a_round
 from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
 from .experiments import ExperimentSet, StaticData
-from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, fit_joint
+from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, ShapeTest, fit_joint, held_shape_test
 from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
 __all__ = ["JointRounds", "CurvatureDecision", "refine_jointly", "decide_curvature", "static_sigma",
@@ -49,6 +49,8 @@ class JointRounds:
     #: None if it does not evaluate there (the dynamic fit's intervals, conditional on the static stage, are
     #: reported)
     two_stage_linearisation: JointFitResult | None = None
+    #: the score test of the Ogden shape held beyond sigma_h'''(1) at the refinement (None: not run)
+    shape_test: ShapeTest | None = None
 
 
 @dataclass
@@ -154,7 +156,8 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
         return rounds
     start_chi2 = _static_chi2(static, experiments.all_static())
     if not _left_the_static_points(rounds.joint, start_chi2, static):
-        return rounds
+        return _free_the_shape(rounds, static, experiments, n_harmonics, stress_terms, slope, fallback, progress,
+                               start_chi2)
     left = (f"the joint refinement left the static points (their chi-square "
             f"{rounds.joint.block_chi2.get('static', 0.0):.6g} against {start_chi2:.6g} at the two-stage result): "
             "it followed a record onto another branch")
@@ -174,11 +177,50 @@ def refine_jointly(params: MembraneParameters, static: StaticFitResult, classifi
                 f"{left}; refined again from the two-stage result without the record(s) at "
                 + ", ".join(f"{c['frequency_Hz']:g} Hz" for c in unreachable) + " (the model there has no response "
                 "of the kind the data show)"] + retry.warnings
-            return retry
+            return _free_the_shape(retry, static, experiments, n_harmonics, stress_terms, slope, fallback, progress,
+                                   start_chi2)
         rounds.classification_s = retry.classification_s
     rejected = JointRounds(None, params, classification, fallback, rounds.classification_s, rounds.warnings)
     return _two_stage_reported(rejected, static, experiments, n_harmonics, fit_c, stress_terms, slope, fallback,
                                f"{left}; the two-stage result is reported")
+
+
+def _free_the_shape(rounds: JointRounds, static: StaticFitResult, experiments: ExperimentSet, n_harmonics: int,
+                    stress_terms: int, slope: bool, fallback: np.ndarray, progress, start_chi2: float) -> JointRounds:
+    """The refinement with the whole Ogden shape free where the data contradict the shape it holds beyond
+    sigma_h'''(1) (:func:`~.joint_fit.held_shape_test` at its optimum; :mod:`~.joint_fit` docstring): a shape
+    held at a guess steers the others (issue 21, item 1). Otherwise ``rounds`` as they are, with the test."""
+    joint = rounds.joint
+    if joint is None or not joint.curvature_fitted or "sigma_h''''(1)_Pa" in joint.names:
+        return rounds
+    points = fitted_points(rounds.classification, experiments)
+    fallback_Pa = float(EXTENDED_COMBINATION_MATRIX[2] @ fallback)
+    try:
+        at_fit = _joint_fit(rounds.parameters, static, experiments, points, "shape", stress_terms, fallback_Pa,
+                            n_harmonics, None, slope, minimise=False)
+    except JointFitError:
+        return rounds
+    rounds.shape_test = test = held_shape_test(joint, at_fit)
+    if not test.rejects:
+        return rounds
+    why = (f"the data contradict the Ogden shape held beyond sigma_h'''(1) (the fourth and fifth derivatives at "
+           f"the base's; score test: {test.statistic:.3g} on {test.dof} degrees of freedom, p = {test.p_value:.2g})")
+    try:
+        free = _joint_fit(rounds.parameters, static, experiments, points, "shape", stress_terms, fallback_Pa,
+                          n_harmonics, progress, slope)
+    except JointFitError as exc:
+        rounds.warnings.append(f"{why}; the fit with them free failed ({exc}): the reported intervals do not "
+                               "allow for the held shape")
+        return rounds
+    if free.cost >= joint.cost or _left_the_static_points(free, start_chi2, static):
+        rounds.warnings.append(f"{why}; the fit with them free did not improve on it (chi-square {free.cost:.6g} "
+                               f"against {joint.cost:.6g}) or left the static points: the held shape's fit is "
+                               "reported, its intervals do not allow for the shape")
+        return rounds
+    rounds.warnings.append(f"{why}: refined with the whole shape free (chi-square {joint.cost:.6g} -> "
+                           f"{free.cost:.6g}); the parameters and intervals reported are that fit's")
+    rounds.joint, rounds.parameters = free, free.parameters
+    return rounds
 
 
 def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiments: ExperimentSet,

@@ -63,6 +63,10 @@ class IdentificationResult:
     #: sigma_h''(1) not identified: the predictions with it at both ends of its interval
     #: (:class:`~dea_ros.identify.curvature_sensitivity.CurvatureSensitivity`)
     curvature_sensitivity: object = None
+    #: the score test of the Ogden shape the refinement held beyond sigma_h'''(1)
+    #: (:class:`~dea_ros.identify.joint_fit.ShapeTest`; None: not run); where it rejected, the reported fit has
+    #: the whole shape free (its statistics name the fourth and fifth derivatives)
+    shape_test: object = None
 
     @property
     def statistics(self):
@@ -119,6 +123,17 @@ class IdentificationResult:
                 meta["d2sigma_h_dlambda2(1)_note"] = (
                     "not fitted: beta/gamma carry the static fit's representation (base parameters file, or "
                     "eqs. 8-9 without one), not a value determined by the data")
+        if self.shape_test is not None:
+            freed = stats is not None and "sigma_h''''(1)_Pa" in stats.names
+            if freed:
+                note = ("the data contradict the shape held beyond sigma_h'''(1): refined with all six Ogden "
+                        "coefficients free")
+            elif self.shape_test.rejects:
+                note = ("the data contradict the shape held beyond sigma_h'''(1), but the fit with it free did not "
+                        "improve on it (warnings): held at the base's, the intervals do not allow for it")
+            else:
+                note = "the fourth and fifth derivatives held at the base's (the score test does not reject them)"
+            meta["ogden_shape"] = {**self.shape_test.as_dict(), "freed": bool(freed), "note": note}
         if self.determination:
             meta["parameters"] = {d.name: {"status": d.status, "ci95": [d.ci_low, d.ci_high],
                                            "determined_by": [r for r, _w in d.determined_by]}

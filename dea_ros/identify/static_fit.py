@@ -74,6 +74,9 @@ __all__ = [
     "static_displacement_jacobian",
     "THIRD_DERIVATIVE_ROW",
     "EXTENDED_COMBINATION_MATRIX",
+    "HIGHER_DERIVATIVE_ROWS",
+    "SHAPE_COMBINATION_MATRIX",
+    "STRESS_NAMES",
 ]
 
 STATIC_METHODS = ("lsq", "paper")
@@ -90,6 +93,17 @@ COMBINATION_MATRIX = np.array([
 THIRD_DERIVATIVE_ROW = np.array([0.0, 0.0, 6.0, 6.0, 24.0, 60.0])
 #: COMBINATION_MATRIX with the third derivative appended (4 x 6).
 EXTENDED_COMBINATION_MATRIX = np.vstack([COMBINATION_MATRIX, THIRD_DERIVATIVE_ROW])
+#: The fourth and fifth derivatives at s = 1 (eq. 10; the beta_i s^i terms have none beyond the third):
+#: with EXTENDED_COMBINATION_MATRIX the whole Ogden shape (6 x 6, invertible) -- the two directions the
+#: four-combination representation holds at the base parameters' (the joint refinement's "shape" mode).
+HIGHER_DERIVATIVE_ROWS = np.array([
+    [0.0, 0.0, 0.0, -24.0, -120.0, -360.0],
+    [0.0, 0.0, 0.0, 120.0, 720.0, 2520.0],
+])
+SHAPE_COMBINATION_MATRIX = np.vstack([EXTENDED_COMBINATION_MATRIX, HIGHER_DERIVATIVE_ROWS])
+#: The names of SHAPE_COMBINATION_MATRIX's rows (Pa; derivatives in s).
+STRESS_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa", "sigma_h''''(1)_Pa",
+                "sigma_h'''''(1)_Pa")
 _SIGMA_REF_PA = 1e5  # scale of the stress parameters in the optimizers
 
 

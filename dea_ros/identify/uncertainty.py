@@ -3,7 +3,8 @@
 Monte Carlo over the identification's linearised covariance
 (:meth:`~dea_ros.identify.metrics.ParameterStatistics.covariance`): parameter vectors are drawn
 from the normal distribution of the fit's coordinates (ln k1, ln eta1, ln eta2, eps_r and the
-stress combinations sigma_h(1), sigma_h'(1)[, sigma_h''(1), sigma_h'''(1)] of eq. 10, whichever
+stress combinations sigma_h(1), sigma_h'(1)[, sigma_h''(1), sigma_h'''(1)[, the fourth and fifth derivatives]] of
+eq. 10, whichever
 the final fit had), mapped to membranes (the stress combinations through the Ogden
 representation closest to the identified beta/gamma, as the joint fit writes them). For each
 sample the frequency response is one batched harmonic-balance solve over the grid
@@ -34,17 +35,14 @@ from ..solvers.newton import solve_native_batch
 from ..solvers.inputs import SinePeriodic
 from .experiments import ExperimentSet
 from .metrics import ParameterStatistics
-from .static_fit import EXTENDED_COMBINATION_MATRIX, OgdenRepresentation
+from .static_fit import SHAPE_COMBINATION_MATRIX, STRESS_NAMES, OgdenRepresentation
 
-__all__ = ["ResponseBand", "sample_parameters", "response_band", "response_bands", "DEFAULT_SAMPLES", "STRESS_NAMES",
+__all__ = ["ResponseBand", "sample_parameters", "response_band", "response_bands", "DEFAULT_SAMPLES",
            "BAND_POINTS"]
 
 #: Monte Carlo samples by default (``dea-ros identify --uncertainty-samples``): the 2.5/97.5 % quantiles of
 #: 48 samples bound the band to within ~+-30 % of its width, enough to see where the model is unsure.
 DEFAULT_SAMPLES = 48
-#: Stress combinations of eq. 10 (derivatives in s = lambda^2), as the fits name them, in the order of
-#: EXTENDED_COMBINATION_MATRIX's rows.
-STRESS_NAMES = ("sigma_h(1)_Pa", "sigma_h'(1)_Pa", "sigma_h''(1)_Pa", "sigma_h'''(1)_Pa")
 _FIELDS = {"eps_r": "relative_permittivity", "k1_Pa": "k1_Pa", "eta1_Pa_s": "eta1_Pa_s", "eta2_Pa_s": "eta2_Pa_s"}
 _BATCH = 16
 #: Frequencies of a confidence band: over the range of a sine data set, and as many again within
@@ -100,19 +98,21 @@ def _apply(params: MembraneParameters, names, delta, is_log) -> MembraneParamete
     """``params`` moved by ``delta`` in the fit's coordinates of ``names``."""
     changes = {}
     bg = np.r_[params.beta_Pa, params.gamma_Pa]
-    combos = EXTENDED_COMBINATION_MATRIX @ bg
-    moved_stress = False
+    combos = SHAPE_COMBINATION_MATRIX @ bg
+    moved = []
     for name, dx, lg in zip(names, delta, is_log):
         if name in STRESS_NAMES:
-            combos[STRESS_NAMES.index(name)] += dx
-            moved_stress = True
+            moved.append(STRESS_NAMES.index(name))
+            combos[moved[-1]] += dx
         elif name in _FIELDS:
             key = _FIELDS[name]
             value = getattr(params, key)
             changes[key] = float(value * math.exp(dx)) if lg else float(value + dx)
-    if moved_stress:
-        rep = OgdenRepresentation(params.prestretch, 4, bg, matrix=EXTENDED_COMBINATION_MATRIX)
-        new = rep.beta_gamma(combos)
+    if moved:
+        # four combinations, the rest of the shape held at params' (as the fit held it); six where it fitted them
+        n = 6 if max(moved) >= 4 else 4
+        rep = OgdenRepresentation(params.prestretch, n, bg, matrix=SHAPE_COMBINATION_MATRIX[:n])
+        new = rep.beta_gamma(combos[:n])
         changes["beta_Pa"] = tuple(float(v) for v in new[:3])
         changes["gamma_Pa"] = tuple(float(v) for v in new[3:])
     return params.replace(**changes)

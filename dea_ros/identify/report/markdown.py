@@ -219,7 +219,9 @@ def parameters_section(result: IdentificationResult) -> list:
 
 _LABELS = {"sigma_h(1)_Pa": ("sigma_h(1)", "kPa", 1e-3), "sigma_h'(1)_Pa": ("d sigma_h/ds (1)", "kPa", 1e-3),
            "sigma_h''(1)_Pa": ("d2 sigma_h/ds2 (1)", "kPa", 1e-3),
-           "sigma_h'''(1)_Pa": ("d3 sigma_h/ds3 (1) (nuisance)", "kPa", 1e-3), "eps_r": ("eps_r", "-", 1.0),
+           "sigma_h'''(1)_Pa": ("d3 sigma_h/ds3 (1) (nuisance)", "kPa", 1e-3),
+           "sigma_h''''(1)_Pa": ("d4 sigma_h/ds4 (1) (nuisance)", "kPa", 1e-3),
+           "sigma_h'''''(1)_Pa": ("d5 sigma_h/ds5 (1) (nuisance)", "kPa", 1e-3), "eps_r": ("eps_r", "-", 1.0),
            "k1_Pa": ("k1", "MPa", 1e-6), "eta1_Pa_s": ("eta1", "MPa s", 1e-6), "eta2_Pa_s": ("eta2", "kPa s", 1e-3)}
 
 
