@@ -212,6 +212,12 @@ def _free_the_shape(rounds: JointRounds, static: StaticFitResult, experiments: E
         rounds.warnings.append(f"{why}; the fit with them free failed ({exc}): the reported intervals do not "
                                "allow for the held shape")
         return rounds
+    implausible = free.parameters.plausibility_problems()
+    if implausible:
+        rounds.warnings.append(f"{why}; the fit with them free ended at an implausible membrane ("
+                               f"{'; '.join(implausible)}: the data see only part of the shape): the held shape's "
+                               "fit is reported, its intervals do not allow for the shape")
+        return rounds
     if free.cost >= joint.cost or _left_the_static_points(free, start_chi2, static):
         rounds.warnings.append(f"{why}; the fit with them free did not improve on it (chi-square {free.cost:.6g} "
                                f"against {joint.cost:.6g}) or left the static points: the held shape's fit is "

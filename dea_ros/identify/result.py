@@ -129,8 +129,8 @@ class IdentificationResult:
                 note = ("the data contradict the shape held beyond sigma_h'''(1): refined with all six Ogden "
                         "coefficients free")
             elif self.shape_test.rejects:
-                note = ("the data contradict the shape held beyond sigma_h'''(1), but the fit with it free did not "
-                        "improve on it (warnings): held at the base's, the intervals do not allow for it")
+                note = ("the data contradict the shape held beyond sigma_h'''(1), but the fit with it free was not "
+                        "kept (the warnings say why): held at the base's, the intervals do not allow for it")
             else:
                 note = "the fourth and fifth derivatives held at the base's (the score test does not reject them)"
             meta["ogden_shape"] = {**self.shape_test.as_dict(), "freed": bool(freed), "note": note}

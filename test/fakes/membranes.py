@@ -7,6 +7,8 @@ resonance on the upper branch where the model near the truth has a quasi-periodi
 ``F05``: member F05 of the coverage family: creep time 7.38 s, resonance 8.97 Hz; with 17 frequencies and noise
 seed 1517422253 its joint refinement leaves the static points with no unreachable record to leave out
 (test_rejected_refinement).
+``F13``: member F13 of the coverage family: thin (26 um), heavy (5.5 g), creep time 0.08 s, resonance 7.39 Hz; its
+two passes determine sigma_h''(1) to +-0.5 % and see the Ogden shape beyond it (test_held_shape).
 """
 from dea_ros.model import preset
 
@@ -30,3 +32,10 @@ F05 = preset("A2").replace(
     relative_permittivity=3.0398337282972654, k1_Pa=36161300.55999581, eta1_Pa_s=267030297.71074435,
     eta2_Pa_s=7278.5810059329215, beta_Pa=(-608104.4283698774, -378234.81793036277, 844384.0095091542),
     gamma_Pa=(48422.94792962354, -750014.6681097824, 15225.448531533999))
+
+F13 = preset("A2").replace(
+    name="F13", prestretch=1.3690142419978857, thickness_m=2.5999681248192284e-05,
+    plate_radius_m=0.005418121103718888, electrode_width_m=0.014618876463310075, mass_kg=0.005471065797404976,
+    relative_permittivity=2.6073171996505904, k1_Pa=24042766.306119893, eta1_Pa_s=1810202.4818657807,
+    eta2_Pa_s=23612.361685399614, beta_Pa=(-1090238.3837896073, -689060.4890614075, 1306945.5190321112),
+    gamma_Pa=(36960.45646370103, -941370.0539335783, 11921.94561747578))
