@@ -485,28 +485,27 @@ def _criterion(widths: np.ndarray, idx, kind: str) -> float:
     return float(np.sum(np.log(w))) if kind == "widths" else float(np.sum(w ** 2))
 
 
+def _pair_correlation(cov: np.ndarray, i: int, j: int) -> float:
+    den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
+    return float(cov[i, j] / den) if den > 0 else float("nan")
+
+
 def _correlations(first: FirstFit, info_rel: np.ndarray) -> dict:
     out = {}
     cov = np.linalg.pinv(info_rel, rcond=SINGULAR_EIGENVALUE_RATIO)
     for a, b, label in (("eta1_Pa_s", "eta2_Pa_s", "eta1/eta2"), ("k1_Pa", "eta1_Pa_s", "k1/eta1"),
                         ("eps_r", "sigma_h''(1)_Pa", "eps_r/sigma_h''(1)")):
         if a in first.names and b in first.names:
-            i, j = first.names.index(a), first.names.index(b)
-            den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
-            out[label] = float(cov[i, j] / den) if den > 0 else float("nan")
+            out[label] = _pair_correlation(cov, first.names.index(a), first.names.index(b))
     return out
 
 
-def _goal_correlation(first: FirstFit, info_rel: np.ndarray, pairs) -> float:
+def _goal_correlation(info_rel: np.ndarray, pairs) -> float:
     """The largest |correlation| among ``pairs`` (index pairs) at ``info_rel`` (0 without pairs)."""
     if not pairs:
         return 0.0
     cov = np.linalg.pinv(info_rel, rcond=SINGULAR_EIGENVALUE_RATIO)
-    worst = 0.0
-    for i, j in pairs:
-        den = math.sqrt(max(cov[i, i] * cov[j, j], 0.0))
-        worst = max(worst, abs(float(cov[i, j] / den)) if den > 0 else 0.0)
-    return worst
+    return max(abs(np.nan_to_num(_pair_correlation(cov, i, j))) for i, j in pairs)
 
 
 def fit_widths(first: FirstFit) -> tuple:
@@ -554,14 +553,14 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     current = _criterion(before, idx, criterion)
     threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
     while len(picks) < max_records:
-        correlation = _goal_correlation(first, info, pairs)
+        correlation = _goal_correlation(info, pairs)
         decorrelate = correlation > goal     # the goal first (module docstring)
         best = None
         for k, (c, g) in enumerate(information):
             if k in used or spent + c.duration_s > budget_s + 1e-9:
                 continue
             value = _criterion(_widths(first, info + g), idx, criterion)
-            after_correlation = _goal_correlation(first, info + g, pairs)
+            after_correlation = _goal_correlation(info + g, pairs)
             if decorrelate:
                 gain, enough = correlation - after_correlation, MIN_DECREASE
             elif after_correlation > goal:
@@ -578,7 +577,7 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
             continue
         if best is None:
             break
-        rate, k, value = best
+        _rate, k, value = best
         c, g = information[k]
         info = info + g
         used.add(k)
