@@ -43,7 +43,8 @@ def one_run(protocol_name: str, seed: int) -> dict:
     res = identify(exp, evaluate_fit=False, stress_terms=1, joint_slope=True)
     st = res.statistics
     out = {"protocol": protocol_name, "seed": seed, "experiment_s": proto.duration_s(),
-           "shape_freed": any("refined with the whole shape free" in w for w in res.warnings)}
+           "shape_freed": any("refined with the whole shape free" in w for w in res.warnings),
+           "shape_outcome": res.shape_test.outcome if res.shape_test is not None else None}
     for n, v in values.items():
         i = st.names.index(n)
         out[n] = {"rel_err": float(st.values[i] / v - 1), "z": float((st.values[i] - v) / st.std_error[i]),

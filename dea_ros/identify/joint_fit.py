@@ -434,6 +434,10 @@ class ShapeTest:
     statistic: float        # the chi-square decrease a Gauss-Newton step with them free predicts, over s^2
     dof: int                # the held directions (2)
     p_value: float
+    #: what was reported (:func:`~.refinement.refine_jointly`): "held" (the test does not reject), "free" (the
+    #: fit with the whole shape free), "held, intervals with the shape free" (that fit not kept: the held
+    #: parameters with the intervals of the objective linearised there with the shape free)
+    outcome: str = "held"
 
     @property
     def rejects(self) -> bool:
@@ -441,7 +445,8 @@ class ShapeTest:
         return self.p_value < SHAPE_TEST_LEVEL
 
     def as_dict(self) -> dict:
-        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value, "rejects": self.rejects}
+        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value, "rejects": self.rejects,
+                "outcome": self.outcome}
 
 
 def held_shape_test(fit: JointFitResult, shape: JointFitResult) -> ShapeTest:

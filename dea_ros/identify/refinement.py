@@ -16,6 +16,7 @@ says how the predictions (resonance peak, step) change with it at both ends of i
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -208,24 +209,27 @@ def _free_the_shape(rounds: JointRounds, static: StaticFitResult, experiments: E
     try:
         free = _joint_fit(rounds.parameters, static, experiments, points, "shape", stress_terms, fallback_Pa,
                           n_harmonics, progress, slope)
+        implausible = free.parameters.plausibility_problems()
+        if implausible:
+            why_not = (f"the fit with them free ended at an implausible membrane ({'; '.join(implausible)}: the "
+                       "data see only part of the shape)")
+        elif free.cost >= joint.cost or _left_the_static_points(free, start_chi2, static):
+            why_not = (f"the fit with them free did not improve on it (chi-square {free.cost:.6g} against "
+                       f"{joint.cost:.6g}) or left the static points")
+        else:
+            rounds.warnings.append(f"{why}: refined with the whole shape free (chi-square {joint.cost:.6g} -> "
+                                   f"{free.cost:.6g}); the parameters and intervals reported are that fit's")
+            rounds.shape_test = dataclasses.replace(test, outcome="free")
+            rounds.joint, rounds.parameters = free, free.parameters
+            return rounds
     except JointFitError as exc:
-        rounds.warnings.append(f"{why}; the fit with them free failed ({exc}): the reported intervals do not "
-                               "allow for the held shape")
-        return rounds
-    implausible = free.parameters.plausibility_problems()
-    if implausible:
-        rounds.warnings.append(f"{why}; the fit with them free ended at an implausible membrane ("
-                               f"{'; '.join(implausible)}: the data see only part of the shape): the held shape's "
-                               "fit is reported, its intervals do not allow for the shape")
-        return rounds
-    if free.cost >= joint.cost or _left_the_static_points(free, start_chi2, static):
-        rounds.warnings.append(f"{why}; the fit with them free did not improve on it (chi-square {free.cost:.6g} "
-                               f"against {joint.cost:.6g}) or left the static points: the held shape's fit is "
-                               "reported, its intervals do not allow for the shape")
-        return rounds
-    rounds.warnings.append(f"{why}: refined with the whole shape free (chi-square {joint.cost:.6g} -> "
-                           f"{free.cost:.6g}); the parameters and intervals reported are that fit's")
-    rounds.joint, rounds.parameters = free, free.parameters
+        why_not = f"the fit with them free failed ({exc})"
+    # the held shape's parameters, with the intervals of the objective linearised there with the whole shape
+    # free (they allow for it, as a marginalisation to first order)
+    rounds.warnings.append(f"{why}; {why_not}: the held shape's parameters are reported, with the intervals of the "
+                           "joint objective linearised there with the whole shape free")
+    rounds.shape_test = dataclasses.replace(test, outcome="held, intervals with the shape free")
+    rounds.joint = at_fit
     return rounds
 
 

@@ -124,16 +124,14 @@ class IdentificationResult:
                     "not fitted: beta/gamma carry the static fit's representation (base parameters file, or "
                     "eqs. 8-9 without one), not a value determined by the data")
         if self.shape_test is not None:
-            freed = stats is not None and "sigma_h''''(1)_Pa" in stats.names
-            if freed:
-                note = ("the data contradict the shape held beyond sigma_h'''(1): refined with all six Ogden "
-                        "coefficients free")
-            elif self.shape_test.rejects:
-                note = ("the data contradict the shape held beyond sigma_h'''(1), but the fit with it free was not "
-                        "kept (the warnings say why): held at the base's, the intervals do not allow for it")
-            else:
-                note = "the fourth and fifth derivatives held at the base's (the score test does not reject them)"
-            meta["ogden_shape"] = {**self.shape_test.as_dict(), "freed": bool(freed), "note": note}
+            note = {"free": "the data contradict the shape held beyond sigma_h'''(1): refined with all six Ogden "
+                            "coefficients free",
+                    "held": "the fourth and fifth derivatives held at the base's (the score test does not reject "
+                            "them)"}.get(self.shape_test.outcome,
+                                         "the data contradict the shape held beyond sigma_h'''(1), but the fit with "
+                                         "it free was not kept (the warnings say why): the held shape's parameters, "
+                                         "with the intervals linearised there with the whole shape free")
+            meta["ogden_shape"] = {**self.shape_test.as_dict(), "note": note}
         if self.determination:
             meta["parameters"] = {d.name: {"status": d.status, "ci95": [d.ci_low, d.ci_high],
                                            "determined_by": [r for r, _w in d.determined_by]}
