@@ -43,7 +43,8 @@ That holds the two remaining directions of the Ogden shape (the fourth and fifth
 the base's. Where the data are precise enough to see them, that guess steers the others (the coverage
 family's F13 with two passes: sigma_h''(1) +5 % at z +17, eps_r, eta1 and eta2 at z +1.8..+2.7; with the
 truth's shape every |z| <= 1.6). ``fit_curvature="shape"`` frees them too (all six Ogden coefficients);
-:func:`held_shape_test` says when the data call for it, and :mod:`~.refinement` then refits.
+:func:`held_shape_test` says when the data call for it, and :mod:`~.refinement` then refits (or, where the
+free fit is not kept, reports the held parameters with the intervals linearised with the shape free).
 """
 from __future__ import annotations
 

@@ -13,6 +13,13 @@ eta2, eps_r on a softening membrane by several of their interval widths), and th
 linearised intervals allow for it. params.yaml carries the free fit's curvature as a representative
 value, flagged "not identified", and :func:`~dea_ros.identify.curvature_sensitivity.curvature_sensitivity`
 says how the predictions (resonance peak, step) change with it at both ends of its interval.
+
+One order further out, the refinement holds the Ogden shape beyond sigma_h'''(1) (the fourth and fifth
+derivatives at s = 1) at the base's; :func:`~.joint_fit.held_shape_test` at its optimum says whether the data
+contradict that (p < ``SHAPE_TEST_LEVEL``), and then the fit is redone with the whole shape free and reported
+(``JointRounds.shape_test.outcome`` "free"); where that fit is not kept (an implausible membrane, no
+improvement, a failure) the held parameters are reported with the intervals of the joint objective linearised
+there with the shape free ("held, intervals with the shape free").
 """
 from __future__ import annotations
 
