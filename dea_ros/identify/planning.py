@@ -516,6 +516,53 @@ def fit_widths(first: FirstFit) -> tuple:
     return dict(zip(first.names, map(float, _widths(first, info)))), _correlations(first, info)
 
 
+def _greedy_picks(first: FirstFit, information: list, info: np.ndarray, idx: list, criterion: str, budget_s: float,
+                  max_records: int, max_correlation: float | None, notes: list) -> tuple:
+    """(picks, information after them) of :func:`plan_experiments`' greedy selection (module docstring): while
+    the goal pair's expected |correlation| is above ``max_correlation``, the record that lowers it most per
+    second; then the largest decrease of the criterion per second among the records that keep it there."""
+    goal = 1.0 if max_correlation is None else float(max_correlation)
+    pairs = [(first.names.index(a), first.names.index(b)) for a, b in CORRELATION_GOAL_PAIRS
+             if a in first.names and b in first.names] if goal < 1.0 else []
+    picks, used, spent = [], set(), 0.0
+    current = _criterion(_widths(first, info), idx, criterion)
+    threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
+    while len(picks) < max_records:
+        correlation = _goal_correlation(info, pairs)
+        decorrelate = correlation > goal
+        best = None
+        for k, (c, g) in enumerate(information):
+            if k in used or spent + c.duration_s > budget_s + 1e-9:
+                continue
+            value = _criterion(_widths(first, info + g), idx, criterion)
+            after_correlation = _goal_correlation(info + g, pairs)
+            if decorrelate:
+                gain, enough = correlation - after_correlation, MIN_DECREASE
+            elif after_correlation > goal:
+                continue
+            else:
+                gain, enough = current - value, threshold
+            if gain > enough and (best is None or gain / c.duration_s > best[0]):
+                best = (gain / c.duration_s, k, value)
+        if best is None and decorrelate:
+            goal = 1.0                       # nothing lowers it: the criterion alone from here
+            names = ", ".join(f"{a}/{b}" for a, b in CORRELATION_GOAL_PAIRS)
+            notes.append(f"no record within the budget lowers the {names} correlation below {max_correlation:g} "
+                         f"(expected {correlation:.3f}); planned for the widths alone")
+            continue
+        if best is None:
+            break
+        _rate, k, value = best
+        c, g = information[k]
+        info = info + g
+        used.add(k)
+        spent += c.duration_s
+        gain, current = current - value, value
+        after = dict(zip(first.names, map(float, _widths(first, info))))
+        picks.append(PlannedRecord(c, gain, gain / c.duration_s, after))
+    return picks, info
+
+
 def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits | None = None,
                      candidates=None, targets=None, criterion: str = "widths", max_records: int = 12,
                      information=None, max_correlation: float | None = DEFAULT_MAX_CORRELATION) -> ExperimentPlan:
@@ -546,45 +593,8 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
     scale = first.scale()
     info = first.information * np.outer(scale, scale)
     before = _widths(first, info)
-    goal = 1.0 if max_correlation is None else float(max_correlation)
-    pairs = [(first.names.index(a), first.names.index(b)) for a, b in CORRELATION_GOAL_PAIRS
-             if a in first.names and b in first.names] if goal < 1.0 else []
-    picks, used, spent = [], set(), 0.0
-    current = _criterion(before, idx, criterion)
-    threshold = MIN_DECREASE if criterion == "widths" else MIN_DECREASE * current
-    while len(picks) < max_records:
-        correlation = _goal_correlation(info, pairs)
-        decorrelate = correlation > goal     # the goal first (module docstring)
-        best = None
-        for k, (c, g) in enumerate(information):
-            if k in used or spent + c.duration_s > budget_s + 1e-9:
-                continue
-            value = _criterion(_widths(first, info + g), idx, criterion)
-            after_correlation = _goal_correlation(info + g, pairs)
-            if decorrelate:
-                gain, enough = correlation - after_correlation, MIN_DECREASE
-            elif after_correlation > goal:
-                continue
-            else:
-                gain, enough = current - value, threshold
-            if gain > enough and (best is None or gain / c.duration_s > best[0]):
-                best = (gain / c.duration_s, k, value)
-        if best is None and decorrelate:
-            goal = 1.0                       # nothing lowers it: the criterion alone from here
-            names = ", ".join(f"{a}/{b}" for a, b in CORRELATION_GOAL_PAIRS)
-            notes.append(f"no record within the budget lowers the {names} correlation below {max_correlation:g} "
-                         f"(expected {correlation:.3f}); planned for the widths alone")
-            continue
-        if best is None:
-            break
-        _rate, k, value = best
-        c, g = information[k]
-        info = info + g
-        used.add(k)
-        spent += c.duration_s
-        gain, current = current - value, value
-        after = _widths(first, info)
-        picks.append(PlannedRecord(c, gain, gain / c.duration_s, dict(zip(first.names, map(float, after)))))
+    picks, info = _greedy_picks(first, information, info, idx, criterion, budget_s, max_records, max_correlation,
+                                notes)
     after = _widths(first, info)
     cheapest = min((c for c, _g in information), key=lambda c: c.duration_s)
     if not picks and cheapest.duration_s > budget_s:
