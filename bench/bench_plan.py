@@ -85,7 +85,6 @@ def _synth(p, seed: int, freqs, **kw):
 def _summary(p, res, exp_time_s: float) -> dict:
     st = res.statistics
     out = {"experiment_s": exp_time_s, "curvature_status": res.curvature_status, "params": {},
-           "shape_freed": any("refined with the whole shape free" in w for w in res.warnings),
            "shape_outcome": res.shape_test.outcome if res.shape_test is not None else None}
     for n in NAMES:
         if n not in st.names:

@@ -75,7 +75,7 @@ LOG = logging.getLogger("dea_ros.identify")
 
 __all__ = ["JointFitResult", "JointObjective", "fit_joint", "JointFitError",
            "CURVATURE_REL_CI_LIMIT", "JOINT_NAMES", "CURVATURE_BOUND_PA", "MATERIAL_NAMES",
-           "ShapeTest", "held_shape_test", "SHAPE_TEST_LEVEL"]
+           "ShapeTest", "held_shape_test", "SHAPE_TEST_LEVEL", "curvature_mode"]
 
 #: sigma_h''(1) counts as identified when its 95 % CI half-width is below this fraction of its value.
 CURVATURE_REL_CI_LIMIT = 0.5
@@ -425,6 +425,16 @@ def _least_squares(obj: JointObjective, lo, hi, max_evaluations: int, progress):
 
     return least_squares(fun, np.clip(obj.theta0(), lo + 1e-9, hi - 1e-9), jac=obj.jacobian, bounds=(lo, hi),
                          method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_evaluations)
+
+
+def curvature_mode(names) -> bool | str:
+    """The ``fit_curvature`` of a joint fit whose parameters are ``names`` (the inverse of
+    :class:`JointObjective`'s naming): "shape", True, "third" or False."""
+    if STRESS_NAMES[4] in names:
+        return "shape"
+    if STRESS_NAMES[2] in names:
+        return True
+    return "third" if STRESS_NAMES[3] in names else False
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,7 @@ from ..solvers.sweep import frequency_sweep
 from .determination import SINGULAR_EIGENVALUE_RATIO, inverse_diagonal
 from .experiments import StaticData, StepData
 from .frequency_points import FrequencyPoint
-from .joint_fit import JointObjective
+from .joint_fit import JointObjective, curvature_mode
 from .protocols import Protocol
 
 __all__ = ["FirstFit", "PlanLimits", "CandidateRecord", "PlannedRecord", "ExperimentPlan", "first_fit_from_file",
@@ -417,8 +417,7 @@ def _objective_for(first: FirstFit, record: CandidateRecord, limits: PlanLimits)
     """The joint refinement's objective over this one record (the data are placeholders: only the
     Jacobian is used), parametrised as the first fit."""
     names = first.names
-    curvature = "shape" if "sigma_h''''(1)_Pa" in names else True if "sigma_h''(1)_Pa" in names else (
-        "third" if "sigma_h'''(1)_Pa" in names else False)
+    curvature = curvature_mode(names)
     slope = "sigma_h'(1)_Pa" in names
     p = first.parameters
     noise = first.laser_noise_m

@@ -35,7 +35,8 @@ from ..model.parameters import MembraneParameters
 from .classification import classification_kinds, classify_records, fitted_points, leave_out_for_a_round
 from .curvature_sensitivity import CurvatureSensitivity, curvature_sensitivity
 from .experiments import ExperimentSet, StaticData
-from .joint_fit import CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, ShapeTest, fit_joint, held_shape_test
+from .joint_fit import (CURVATURE_REL_CI_LIMIT, JointFitError, JointFitResult, ShapeTest, curvature_mode, fit_joint,
+                        held_shape_test)
 from .static_fit import EXTENDED_COMBINATION_MATRIX, StaticFitResult
 
 __all__ = ["JointRounds", "CurvatureDecision", "refine_jointly", "decide_curvature", "static_sigma",
@@ -113,6 +114,11 @@ def curvature_fallback(static: StaticFitResult | None, params: MembraneParameter
     if static is not None and static.prior_beta_gamma is not None:
         return np.asarray(static.prior_beta_gamma, float)
     return np.r_[params.beta_Pa, params.gamma_Pa]
+
+
+def _curvature_Pa(beta_gamma) -> float:
+    """sigma_h''(1) (Pa, derivative in s) of Ogden (beta, gamma) (eq. 10)."""
+    return float(EXTENDED_COMBINATION_MATRIX[2] @ np.asarray(beta_gamma, float))
 
 
 def _joint_fit(start: MembraneParameters, static: StaticFitResult, experiments: ExperimentSet, points: list,
@@ -199,10 +205,10 @@ def _free_the_shape(rounds: JointRounds, static: StaticFitResult, experiments: E
     sigma_h'''(1) (:func:`~.joint_fit.held_shape_test` at its optimum; :mod:`~.joint_fit` docstring): a shape
     held at a guess steers the others (issue 21, item 1). Otherwise ``rounds`` as they are, with the test."""
     joint = rounds.joint
-    if joint is None or not joint.curvature_fitted or "sigma_h''''(1)_Pa" in joint.names:
+    if joint is None or curvature_mode(joint.names) is not True:
         return rounds
     points = fitted_points(rounds.classification, experiments)
-    fallback_Pa = float(EXTENDED_COMBINATION_MATRIX[2] @ fallback)
+    fallback_Pa = _curvature_Pa(fallback)
     try:
         at_fit = _joint_fit(rounds.parameters, static, experiments, points, "shape", stress_terms, fallback_Pa,
                             n_harmonics, None, slope, minimise=False)
@@ -247,7 +253,7 @@ def _two_stage_reported(rounds: JointRounds, static: StaticFitResult, experiment
     try:
         rounds.two_stage_linearisation = _joint_fit(
             rounds.parameters, static, experiments, fitted_points(rounds.classification, experiments), fit_c,
-            stress_terms, float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics, None, slope, minimise=False)
+            stress_terms, _curvature_Pa(fallback), n_harmonics, None, slope, minimise=False)
         note = ("its intervals are those of the joint objective linearised there (every parameter free, the static "
                 "stage's uncertainty included)")
     except JointFitError as exc:
@@ -286,7 +292,7 @@ def _rounds(params: MembraneParameters, static: StaticFitResult, classification:
         pts = fitted_points(rounds.classification, experiments)
         try:
             rounds.joint = _joint_fit(rounds.parameters, static, experiments, pts, curvature, stress_terms,
-                                      float(EXTENDED_COMBINATION_MATRIX[2] @ fallback), n_harmonics, progress,
+                                      _curvature_Pa(fallback), n_harmonics, progress,
                                       slope)
         except JointFitError as exc:
             rounds.warnings.append(f"joint refinement failed ({exc}); the two-stage result is reported")
@@ -320,7 +326,7 @@ def _keep_free(joint: JointFitResult, params: MembraneParameters, rounds: JointR
     near = [c for c in classification if c["used"] != "left out"
             and c["measured_rms_m"] > 0.5 * max(x["measured_rms_m"] for x in classification)]
     hint = "" if len(near) >= 3 else " Records near the resonance peak (large amplitude) would determine it."
-    written = float(EXTENDED_COMBINATION_MATRIX[2] @ np.r_[params.beta_Pa, params.gamma_Pa])
+    written = _curvature_Pa(np.r_[params.beta_Pa, params.gamma_Pa])
     sens = curvature_sensitivity(params, joint.statistics, experiments, n_harmonics)
     warning = (
         "sigma_h''(1) (curvature of the hyperelastic stress, eq. 10) is not identified by these "
