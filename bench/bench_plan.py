@@ -38,7 +38,9 @@ membrane, static points at the family's other masses, each run's noise seed from
 ``--reach`` (session 21): how far any second pass could go, by the planner's expected widths from the
 family's first pass (``one_reach``): the node's plan, a plan aimed at sigma_h''(1) alone (both within the
 budget) and every candidate record repeated 100 times (the information the rig's candidate set at the
-dynamic mass holds; ~100 x the budget).
+dynamic mass holds; ~100 x the budget); since session 22 the same three with static points at the family's
+other masses (1-5 g, 0 V and the peak voltage) among the candidates, as ``dea-ros plan --other-mass`` offers
+them where the rig has those masses.
 
 Run: python bench/bench_plan.py [--membranes 3] [--seeds 2] [--members F00,F01] [--data held] [--reach]
 [--jsonl bench/results/plan.jsonl] (appends one JSON line per run; --table-only tabulates).
@@ -205,8 +207,11 @@ def one_run_held(p, f_r: float, seed: int) -> dict:
             "wall_s": {"one_pass": t1 - t0, "first_and_plan": t2 - t1, "second": t3 - t2}}
 
 
-#: what --reach reports: the expected sigma_h''(1) half-width and |corr(eta1, eta2)| of these plans
-REACH_CASES = ("node's plan", "curvature only", "every candidate x100")
+#: what --reach reports: the expected sigma_h''(1) half-width and |corr(eta1, eta2)| of these plans; the
+#: last three (session 22) with static points at the family's other masses (1-5 g) among the candidates (0 V and the
+#: amplifier's peak voltage on each: a mass swap by hand, which the rig's operator would do)
+REACH_CASES = ("node's plan", "curvature only", "every candidate x100", "other masses: node's criterion",
+               "other masses: curvature only", "other masses: every candidate x100")
 S2 = "sigma_h''(1)_Pa"
 
 
@@ -227,14 +232,18 @@ def one_reach(p, f_r: float, seed: int) -> dict:
     except (IntegrationError, PlanningError) as exc:
         return {**base, "error": str(exc)}
     fit = first_fit_from_result(first)
-    info, _notes = candidate_information(fit, candidate_records(fit.parameters, second.limits), second.limits)
-    scale = fit.scale()
-    every = fit.information + 100.0 * sum(g for _c, g in info) / np.outer(scale, scale)
-    limit_widths, limit_corr = fit_widths(dataclasses.replace(fit, information=every))
-    only = plan_experiments(fit, budget, second.limits, targets=(S2,), information=info)
-    cases = {"node's plan": (second.plan.widths_after, second.plan.correlation_after),
-             "curvature only": (only.widths_after, only.correlation_after),
-             "every candidate x100": (limit_widths, limit_corr)}
+    cases = {"node's plan": (second.plan.widths_after, second.plan.correlation_after)}
+    masses = dataclasses.replace(second.limits, other_masses_kg=tuple(m for m in DEFAULT_STATIC_MASSES_KG if m > 0))
+    for prefix, limits in (("", second.limits), ("other masses: ", masses)):
+        info, _notes = candidate_information(fit, candidate_records(fit.parameters, limits), limits)
+        scale = fit.scale()
+        every = fit.information + 100.0 * sum(g for _c, g in info) / np.outer(scale, scale)
+        only = plan_experiments(fit, budget, limits, targets=(S2,), information=info)
+        cases[prefix + "curvature only"] = (only.widths_after, only.correlation_after)
+        cases[prefix + "every candidate x100"] = fit_widths(dataclasses.replace(fit, information=every))
+        if prefix:
+            node = plan_experiments(fit, budget, limits, information=info)
+            cases[prefix + "node's criterion"] = (node.widths_after, node.correlation_after)
     return {**base, "budget_s": budget, "before": {"s2": second.plan.widths_before.get(S2),
                                                    "corr": second.plan.correlation_before.get("eta1/eta2")},
             "reach": {k: {"s2": w.get(S2), "corr": c.get("eta1/eta2")} for k, (w, c) in cases.items()}}
@@ -242,23 +251,29 @@ def one_reach(p, f_r: float, seed: int) -> dict:
 
 def reach_text(records: list) -> str:
     """The --reach table: per run the expected sigma_h''(1) half-width and |corr(eta1, eta2)| by case, and how
-    many runs each case brings within 10 % / below 0.9."""
+    many runs each case brings within 10 % / below 0.9 (the cases the runs recorded: session 21's have three)."""
     ok = [r for r in records if "reach" in r]
+    cases = [k for k in REACH_CASES if any(k in r["reach"] for r in ok)]
     out = [f"Machine: {machine()}", "", f"{len(ok)} runs (failed: {len(records) - len(ok)})", "",
-           "| membrane, seed | creep s | budget s | sigma_h''(1) 95 % half-width: first / " + " / ".join(REACH_CASES)
-           + " | abs corr(eta1, eta2): first / " + " / ".join(REACH_CASES) + " |", "|---|---|---|---|---|"]
+           "| membrane, seed | creep s | budget s | sigma_h''(1) 95 % half-width: first / " + " / ".join(cases)
+           + " | abs corr(eta1, eta2): first / " + " / ".join(cases) + " |", "|---|---|---|---|---|"]
 
     def pct(w):
         return "inf" if w is None or not np.isfinite(w) else f"{w * 100:.3g} %"
+
+    def corr(v):
+        return "-" if v is None else f"{abs(v):.2f}"
     for r in ok:
+        got = [r["reach"].get(k, {}) for k in cases]
         out.append(f"| {r['membrane']}, {r['seed']} | {r['creep_s']:.2g} | {r['budget_s']:.0f} | "
-                   + " / ".join(pct(v) for v in [r["before"]["s2"]] + [r["reach"][k]["s2"] for k in REACH_CASES])
-                   + " | " + " / ".join(f"{abs(v):.2f}" for v in [r["before"]["corr"]]
-                                        + [r["reach"][k]["corr"] for k in REACH_CASES]) + " |")
-    for k in REACH_CASES:
-        s2 = sum(r["reach"][k]["s2"] is not None and r["reach"][k]["s2"] <= 0.1 for r in ok)
-        c = sum(abs(r["reach"][k]["corr"]) < 0.9 for r in ok)
-        out.append(f"\n{k}: expected sigma_h''(1) half-width <= 10 % in {s2}/{len(ok)}, |corr| < 0.9 in {c}/{len(ok)}")
+                   + " / ".join(pct(v) for v in [r["before"]["s2"]] + [g.get("s2") for g in got])
+                   + " | " + " / ".join(corr(v) for v in [r["before"]["corr"]] + [g.get("corr") for g in got]) + " |")
+    for k in cases:
+        got = [r["reach"][k] for r in ok if k in r["reach"]]
+        s2 = sum(g["s2"] is not None and g["s2"] <= 0.1 for g in got)
+        c = sum(g["corr"] is not None and abs(g["corr"]) < 0.9 for g in got)
+        out.append(f"\n{k}: expected sigma_h''(1) half-width <= 10 % in {s2}/{len(got)}, |corr| < 0.9 in "
+                   f"{c}/{len(got)}")
     return "\n".join(out) + "\n"
 
 

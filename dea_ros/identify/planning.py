@@ -61,7 +61,7 @@ from ..model.parameters import MembraneParameters
 from ..model.settling import SettleTime, settle_time
 from ..model.yaml_files import read_yaml_mapping
 from ..solvers.inputs import SinePeriodic
-from ..solvers.sweep import frequency_sweep
+from ..solvers.sweep import frequency_sweep, orbit_time_constants
 from .determination import SINGULAR_EIGENVALUE_RATIO, inverse_diagonal
 from .experiments import StaticData, StepData
 from .frequency_points import FrequencyPoint
@@ -195,6 +195,9 @@ class PlanLimits:
         for name in ("amplitude_fractions", "step_fractions", "static_fractions"):
             if any(not (0 < float(f) <= 1) for f in getattr(self, name)):
                 raise PlanningError(f"plan limits: {name} must lie in (0, 1] (fractions of max_voltage_V)")
+        if any(not (isinstance(m, (int, float)) and math.isfinite(m) and m > 0) for m in self.other_masses_kg):
+            raise PlanningError(f"plan limits: other_masses_kg must be positive masses in kg (a hold's settle time "
+                                f"needs the mass's dynamics), got {tuple(self.other_masses_kg)!r}")
 
 
 @dataclass(frozen=True)
@@ -325,8 +328,8 @@ def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, vol
     * ``"sine"``: at the mean u^2 (u_eff = sqrt(amplitude^2 / 2 + offset^2): the creep sees the mean
       Maxwell pressure), or the periodic orbit's own slowest time constant where it is slower
       (``orbit_time_constant_s``, from its Floquet multipliers: near a resonance or a fold the approach
-      to the orbit is slower than any time constant at rest; :func:`_orbit_time_constants`), at least
-      ``limits.settle_s``.
+      to the orbit is slower than any time constant at rest;
+      :func:`~dea_ros.solvers.sweep.orbit_time_constants`), at least ``limits.settle_s``.
 
     Where eq. 20 has no equilibrium at the operating point the cap is held, with a warning."""
     umax = limits.max_voltage_V
@@ -340,24 +343,6 @@ def record_settle(params: MembraneParameters, limits: PlanLimits, kind: str, vol
     except DeaRosError:
         return SettleTime(u, params.mass_kg if mass_kg is None else float(mass_kg), math.inf, math.nan,
                           limits.settle_tolerance_m, math.inf, cap, cap)
-
-
-def _orbit_time_constants(params: MembraneParameters, amplitude_V: float, offset_V: float, freqs) -> dict:
-    """{frequency (rounded to mHz): the slowest time constant of the periodic orbits there (s; the slowest
-    branch where there are several)} from a harmonic-balance sweep with Floquet multipliers; {} when the
-    sweep fails (the time constant at rest is used then)."""
-    try:
-        sweep = frequency_sweep(params, SinePeriodic(amplitude_V, 1.0, offset_V), np.asarray(freqs, float),
-                                n_harmonics=8, branch_switching=False, realised=False)
-    except (DeaRosError, ArithmeticError, ValueError):
-        return {}
-    out: dict = {}
-    for pt in sweep.points:
-        tau = pt.solution.slowest_time_constant_s if pt.solution is not None else float("nan")
-        if tau == tau:
-            key = round(float(pt.frequency_Hz), 3)
-            out[key] = max(out.get(key, 0.0), tau)
-    return out
 
 
 def step_rest_s(params: MembraneParameters, limits: PlanLimits | None = None) -> float:
@@ -390,7 +375,7 @@ def candidate_records(params: MembraneParameters, limits: PlanLimits | None = No
         what = f"the settle of the {amp:.0f} V{f' + {off:.0f} V offset' if off else ''} sine"
         at_rest = record_settle(params, limits, "sine", amplitude_V=amp, offset_V=off)
         freqs = [float(f) for f in grid if amp * 2 * math.pi * f <= limits.slew_rate_V_per_s]
-        orbit = _orbit_time_constants(params, amp, off, freqs) if freqs else {}
+        orbit = orbit_time_constants(params, SinePeriodic(amp, 1.0, off), freqs, stable_only=True) if freqs else {}
         for f in freqs:
             tau = orbit.get(round(f, 3), 0.0)
             settle = at_rest if not tau > at_rest.time_constant_s else \

@@ -26,8 +26,10 @@ linearised at rest (0 V and the sine's mean u^2: the creep mode, and the ringing
 omega)); a level of the staircase, the rest before the step and each sine are held ``factor`` (12) of it
 (e^-12 ~ 6e-6 of the transient left: a creep of ~300 um then misses equilibrium by ~2 nm, a tenth of the
 noise of a static point's mean; 7 left 0.1-0.3 um, several times it), at least the protocol defaults (3 s,
-2 s, 5 s). Near a fold the approach to the periodic response is slower than any time constant at rest
-(a Floquet multiplier near 1): such a record may still be settling, as on the rig.
+2 s, 5 s). Near a resonance or a fold the approach to the periodic response is slower than any time
+constant at rest (a Floquet multiplier near 1): each sine frequency is held ``factor`` of the slowest time
+constant of the stable periodic orbits there where that is the longer (:func:`rig_sine_settle_s`; before
+session 22 the rest's alone, and the peak records of slow-creep membranes were measured still settling).
 """
 from __future__ import annotations
 
@@ -42,14 +44,16 @@ from ..errors import IntegrationError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from ..model.settling import slowest_time_constant_s
+from ..solvers.inputs import SinePeriodic
 from ..solvers.integrate import simulate_held
+from ..solvers.sweep import orbit_time_constants
 from .bag_experiments import BagSignals, experiment_record, experiments_from_signals, pass_metadata_name
 from .experiments import GEOMETRY_FIELDS
 from .protocols import Protocol, segment_at
 from .synth import LaserReadings, static_points
 
-__all__ = ["RigSettleTimes", "RigRecording", "RecordedPass", "rig_settle_times", "rig_protocol", "record_protocol",
-           "rig_experiments", "passes_experiments"]
+__all__ = ["RigSettleTimes", "RigRecording", "RecordedPass", "rig_settle_times", "rig_sine_settle_s", "rig_protocol",
+           "record_protocol", "rig_experiments", "passes_experiments"]
 
 T0_NS = 1_700_000_000_000_000_000   # the protocol's start on the (synthetic) epoch clock, ns
 
@@ -61,7 +65,8 @@ class RigSettleTimes:
     slowest_time_constant_s: float   # of the model linearised at rest, over 0 V and the sine's mean u^2
     static_hold_s: float
     rest_s: float
-    sine_settle_s: float
+    sine_settle_s: float             # at least, every frequency (rig_sine_settle_s)
+    factor: float = 12.0             # holds in time constants
 
 
 @dataclass
@@ -83,7 +88,20 @@ def rig_settle_times(params: MembraneParameters, amplitude_V: float = 2500.0, fa
                      static_factor: float = 12.0) -> RigSettleTimes:
     """The holds of :func:`rig_protocol` for ``params`` (module docstring)."""
     tau = max(slowest_time_constant_s(params, 0.0), slowest_time_constant_s(params, amplitude_V / math.sqrt(2)))
-    return RigSettleTimes(tau, max(3.0, static_factor * tau), max(2.0, factor * tau), max(5.0, factor * tau))
+    return RigSettleTimes(tau, max(3.0, static_factor * tau), max(2.0, factor * tau), max(5.0, factor * tau),
+                          factor)
+
+
+def rig_sine_settle_s(params: MembraneParameters, frequencies_Hz: Sequence[float], settle: RigSettleTimes,
+                      amplitude_V: float = 2500.0) -> dict:
+    """{frequency (Hz): settle (s)}: ``settle.sine_settle_s``, or ``settle.factor`` x the slowest time constant
+    of the stable periodic orbits of the ``amplitude_V`` sine there where that is longer (module docstring;
+    where none is stable, the rest's hold: such a record does not settle on an orbit)."""
+    freqs = [float(f) for f in frequencies_Hz]
+    orbit = orbit_time_constants(params, SinePeriodic(amplitude_V, 1.0), freqs, stable_only=True) if freqs else {}
+    slowest = {f: orbit.get(round(f, 3), 0.0) for f in freqs}     # inf: no stable orbit (the rest's hold then)
+    return {f: max(settle.sine_settle_s, settle.factor * tau if math.isfinite(tau) else 0.0)
+            for f, tau in slowest.items()}
 
 
 def rig_protocol(params: MembraneParameters, frequencies_Hz: Sequence[float], settle: RigSettleTimes | None = None,
@@ -97,9 +115,15 @@ def rig_protocol(params: MembraneParameters, frequencies_Hz: Sequence[float], se
     # a frequency with fewer than 1.5 periods in sine_measure_s gets two periods (its own segment): one period
     # is cut below a period by the extraction's guard at the window's end
     slow = [f for f in freqs if f * sine_measure_s < 1.5]
-    sines = [{"kind": "sine", "amplitude_V": float(amplitude_V), "frequencies_Hz": fs, "settle_s": s.sine_settle_s,
-              "measure_s": m} for fs, m in ((slow, 2.0 / min(slow, default=1.0)),
-                                            ([f for f in freqs if f not in slow], float(sine_measure_s))) if fs]
+    settle_s = rig_sine_settle_s(params, freqs, s, amplitude_V)
+    sines: list = []
+    for f in freqs:             # ascending; consecutive frequencies with the same hold share a segment
+        measure = 2.0 / min(slow) if f in slow else float(sine_measure_s)
+        if sines and (sines[-1]["settle_s"], sines[-1]["measure_s"]) == (settle_s[f], measure):
+            sines[-1]["frequencies_Hz"].append(f)
+        else:
+            sines.append({"kind": "sine", "amplitude_V": float(amplitude_V), "frequencies_Hz": [f],
+                          "settle_s": settle_s[f], "measure_s": measure})
     return Protocol.from_dict({"name": "rig_synth", "membrane": params.name, "mass_kg": params.mass_kg, "segments": [
         {"kind": "static", "voltages_V": [float(v) for v in staircase_V], "hold_s": s.static_hold_s, "measure_s": 1.0},
         {"kind": "rest", "hold_s": s.rest_s},

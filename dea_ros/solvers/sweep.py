@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from ..errors import ContinuationError, HarmonicBalanceError, SteadyStateError
+from ..errors import ContinuationError, DeaRosError, HarmonicBalanceError, SteadyStateError
 from ..model.equilibrium import static_equilibrium
 from ..model.parameters import MembraneParameters
 from .branch_analysis import END_TOL, LOCATE_STEP_FACTOR, analyse_branch, make_branch
@@ -52,7 +52,7 @@ from .sweep_results import (
 __all__ = [
     "SweepPoint", "Fold", "Bifurcation", "Response", "Band", "Branch", "SweepResult", "frequency_sweep",
     "ContinuationError", "sweep_independent", "KINDS", "period_doubled_solution", "PRIMARY", "END_TOL",
-    "stability_segments", "H_MAX", "LOCATE_STEP_FACTOR", "bands", "classify_point",
+    "stability_segments", "H_MAX", "LOCATE_STEP_FACTOR", "bands", "classify_point", "orbit_time_constants",
 ]
 
 #: Largest arclength step (ln omega and scaled collocation values): steps also halve when the
@@ -218,6 +218,43 @@ def period_doubled_solution(params: MembraneParameters, periodic_input: Periodic
         return None
     stable = [p for p in cands if p.stable]
     return (stable or cands)[0].solution
+
+
+def orbit_time_constants(params: MembraneParameters, periodic_input: PeriodicInput, freqs,
+                         stable_only: bool = False) -> dict:
+    """{frequency (Hz, rounded to mHz): the slowest time constant of the periodic orbits there (s; the
+    slowest branch where there are several, inf where one is unstable)} from a harmonic-balance sweep of
+    ``periodic_input`` (its frequency replaced) over ``freqs`` with Floquet multipliers
+    (:attr:`PeriodicSolution.slowest_time_constant_s`): near a resonance or a fold the approach to the orbit
+    is slower than any time constant at rest. ``stable_only``: the slowest of the stable branches (where a
+    run lands), inf where only unstable orbits are found. The frequencies a sweep does not reach (it failed,
+    the continuation turned back at a fold and never came past it, or, with ``stable_only``, it passed them
+    on an unstable branch only) are swept on their own, halved where that reaches none of them, down to
+    single frequencies (left out when nothing is found): one frequency the continuation cannot pass does not
+    lose the others' time constants."""
+    freqs = sorted(float(f) for f in freqs)
+    out: dict = {}
+    try:
+        sweep = frequency_sweep(params, periodic_input, np.asarray(freqs, float), n_harmonics=8,
+                                branch_switching=False, realised=False)
+    except (DeaRosError, ArithmeticError, ValueError, np.linalg.LinAlgError):
+        sweep = None
+    unstable: set = set()
+    for pt in sweep.points if sweep is not None else ():
+        tau = pt.solution.slowest_time_constant_s if pt.solution is not None else float("nan")
+        key = round(float(pt.frequency_Hz), 3)
+        if stable_only and math.isinf(tau):
+            unstable.add(key)
+        elif tau == tau:
+            out[key] = max(out.get(key, 0.0), tau)
+    missing = [f for f in freqs if round(f, 3) not in out]
+    if missing and len(freqs) > 1:
+        parts = [missing] if len(missing) < len(freqs) else [freqs[:len(freqs) // 2], freqs[len(freqs) // 2:]]
+        for part in parts:
+            out.update(orbit_time_constants(params, periodic_input, part, stable_only))
+    elif missing:
+        out.update({key: math.inf for key in unstable})
+    return out
 
 
 def sweep_independent(

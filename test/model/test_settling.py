@@ -17,11 +17,12 @@ import math
 import numpy as np
 import pytest
 
-from dea_ros.identify.planning import PlanLimits, candidate_records, record_settle
+from dea_ros.identify.planning import PlanLimits, _frequency_grid, candidate_records, record_settle
 from dea_ros.model import preset, settle_time, slowest_time_constant_s, static_equilibrium
 from dea_ros.solvers.inputs import SinePeriodic
 from dea_ros.solvers.integrate import simulate_held
-from dea_ros.solvers.sweep import frequency_sweep
+from dea_ros.solvers.sweep import frequency_sweep, orbit_time_constants
+from fakes.membranes import F07
 
 DT = 0.02        # s, the held voltage's update period (the samples of the integrated response)
 LEVEL_V = 2500.0
@@ -110,3 +111,38 @@ def test_near_resonance_a_sine_settles_at_its_orbits_rate_slower_than_at_rest():
     planned = record_settle(p, PlanLimits(), "sine", amplitude_V=u, orbit_time_constant_s=tau)
     at_rest = record_settle(p, PlanLimits(), "sine", amplitude_V=u)
     assert planned.time_constant_s == tau and planned.settle_s > at_rest.settle_s
+
+
+def test_orbit_time_constants_reach_the_stable_orbit_where_one_sweep_runs_on_an_unstable_branch():
+    """F07 (fakes.membranes), 1250 V + 1250 V offset sines over the planner's frequency grid: the one sweep
+    over the grid passes 5.9-12.7 Hz on an unstable branch only (every orbit there unstable: before session
+    22 the planner left those offset sines out as 'not stable'). orbit_time_constants sweeps those
+    frequencies again on their own and finds the stable orbit a run lands on; at 11.64 Hz, near the fold,
+    its time constant (~40 s, 2.8 x the slowest at rest) is the decay rate of the d_rms of whole periods
+    integrated from rest, and the planner holds that record longer than at rest."""
+    p, u = F07, 1250.0
+    limits = PlanLimits(offsets=True)
+    grid = [float(f) for f in _frequency_grid(p, limits) if u * 2 * math.pi * f <= limits.slew_rate_V_per_s]
+    sweep = frequency_sweep(p, SinePeriodic(u, 1.0, u), np.asarray(grid), n_harmonics=8, branch_switching=False,
+                            realised=False)
+    f = next(g for g in grid if abs(g - 11.64) < 0.02)
+    assert all(math.isinf(pt.solution.slowest_time_constant_s) for pt in sweep.points
+               if abs(pt.frequency_Hz - f) < 1e-9)
+    taus = orbit_time_constants(p, SinePeriodic(u, 1.0, u), grid, stable_only=True)
+    assert set(taus) == {round(g, 3) for g in grid} and all(math.isfinite(t) for t in taus.values())
+    tau = taus[round(f, 3)]
+    assert tau > 2.0 * slowest_time_constant_s(p, math.sqrt(u ** 2 / 2 + u ** 2))
+    rate = 500.0
+    t = np.arange(int(500 * rate)) / rate
+    x0 = np.asarray(static_equilibrium(p, 0.0).state, float).reshape(3)
+    d = simulate_held(p, u + u * np.sin(2 * np.pi * f * t), 1.0 / rate, x0=x0).displacement_m
+    per = int(round(rate / f * 23))              # 23 periods, ~1.98 s
+
+    def rms(t0):
+        k = int(round(round(t0 * f) / f * rate))     # a whole number of periods in
+        return float(np.std(d[k:k + per]))
+    err = [rms(t0) - rms(480.0) for t0 in (40.0, 100.0)]      # 480 s: 12 time constants
+    assert -60.0 / math.log(err[1] / err[0]) == pytest.approx(tau, rel=0.1)
+    sine = next(c for c in candidate_records(p, limits) if c.kind == "sine" and c.offset_V
+                and abs(c.frequency_Hz - f) < 1e-9)
+    assert sine.time_constant_s == pytest.approx(tau) and math.isfinite(sine.transient_left_m)
