@@ -598,8 +598,9 @@ def plan_experiments(first: FirstFit, budget_s: float = 60.0, limits: PlanLimits
 
 def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | None = None) -> Protocol:
     """The planned records as a protocol the identifier node runs (the mass and membrane of ``base``):
-    steps from 0 V after a rest, static levels, sines grouped by amplitude and offset, then 0 V, each
-    held its record's ``settle_s`` (:func:`record_settle`) before it is measured. Static points at
+    steps from 0 V after a rest, static levels, sines grouped by amplitude, offset and hold, then 0 V, each
+    held its record's ``settle_s`` (:func:`record_settle`) before it is measured (before session 22 a group
+    held every frequency for its longest hold: the pass ran longer than the plan's cost). Static points at
     another mass cannot be run without changing the mass by hand: they are left out (PlanningError if
     nothing else is left)."""
     limits = limits or PlanLimits()
@@ -607,8 +608,8 @@ def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | Non
     shapes: dict = {}
     for p in plan.picks:
         r = p.record
-        if r.kind == "sine":
-            shapes.setdefault((r.amplitude_V, r.offset_V), []).append(r)
+        if r.kind == "sine":     # one segment per shape and hold: each frequency of a segment is held its settle_s
+            shapes.setdefault((r.amplitude_V, r.offset_V, r.settle_s), []).append(r)
         elif r.kind == "step":
             segments.append({"kind": "rest", "hold_s": r.settle_s})
             segments.append({"kind": "step", "initial_V": 0.0, "final_V": r.final_V, "pre_s": limits.step_pre_s,
@@ -617,10 +618,11 @@ def plan_protocol(plan: ExperimentPlan, base: Protocol, limits: PlanLimits | Non
             segments.append({"kind": "static", "voltages_V": [r.voltage_V],
                              "hold_s": r.settle_s + limits.static_measure_s,
                              "measure_s": limits.static_measure_s})
-    for (amp, off), picks in shapes.items():
+    for (amp, off, settle), picks in sorted(shapes.items(),
+                                            key=lambda kv: (kv[0][:2], min(r.frequency_Hz for r in kv[1]))):
         segments.append({"kind": "sine", "amplitude_V": amp, "offset_V": off,
-                         "frequencies_Hz": sorted(r.frequency_Hz for r in picks),
-                         "settle_s": max(r.settle_s for r in picks), "measure_s": limits.measure_s})
+                         "frequencies_Hz": sorted(r.frequency_Hz for r in picks), "settle_s": settle,
+                         "measure_s": limits.measure_s})
     if not segments:
         raise PlanningError("no planned record can run at the protocol's mass")
     segments.append({"kind": "rest", "hold_s": 1.0})

@@ -22,7 +22,8 @@ from dea_ros.errors import PlanningError, ProtocolError
 from dea_ros.identify.pipeline import identify
 from dea_ros.identify.planning import (CandidateRecord, ExperimentPlan, PlanLimits, PlannedRecord,
                                        candidate_information, candidate_records, first_fit_from_file,
-                                       first_fit_from_result, plan_experiments, plan_protocol, step_rest_s)
+                                       first_fit_from_result, plan_experiments, plan_protocol, sine_record_cost,
+                                       step_rest_s)
 from dea_ros.identify.protocols import Protocol, load_protocol
 from dea_ros.identify.report.parameters_file import write_parameters
 from dea_ros.identify.synth import synthesize_experiments
@@ -126,17 +127,25 @@ def test_planned_records_become_protocol_segments_the_node_runs():
     assert step.duration_s == pytest.approx(rest + 0.5 + 5.0)
     base = Protocol.from_dict({"protocol": {"name": "p", "mass_kg": params.mass_kg,
                                             "segments": [{"kind": "rest", "hold_s": 1}]}})
-    proto = plan_protocol(_plan_of([sine, offset, step, static, other]), base)
+    # a second 2500 V sine held 30 s longer (a record near a fold): its own segment, so the first is not
+    # held as long (before session 22 the shape's group held every frequency for the longest hold)
+    near = next(c for c in recs if c.kind == "sine" and c.offset_V == 0 and c.amplitude_V == 2500
+                and c.frequency_Hz > sine.frequency_Hz)
+    limits = PlanLimits()
+    near = dataclasses.replace(near, settle_s=near.settle_s + 30.0,
+                               duration_s=sine_record_cost(limits, near.frequency_Hz, near.settle_s + 30.0)[0])
+    proto = plan_protocol(_plan_of([sine, offset, step, static, other, near]), base)
     segs = proto.schedule(max_voltage_V=2500.0)
     kinds = [s.kind for s in segs]
-    assert kinds.count("sine") == 2 and kinds.count("step") == 1 and kinds.count("static") == 1
+    assert kinds.count("sine") == 3 and kinds.count("step") == 1 and kinds.count("static") == 1
     # the step starts from rest: a rest segment of step_rest_s just before it
     k = kinds.index("step")
     assert kinds[k - 1] == "rest" and segs[k - 1].end_s - segs[k - 1].start_s == pytest.approx(rest)
     sines = {(s.info["frequency_Hz"], s.info["amplitude_V"], s.info["offset_V"]) for s in segs if s.kind == "sine"}
-    assert sines == {(sine.frequency_Hz, 2500.0, 0.0), (offset.frequency_Hz, offset.amplitude_V, offset.offset_V)}
+    assert sines == {(sine.frequency_Hz, 2500.0, 0.0), (offset.frequency_Hz, offset.amplitude_V, offset.offset_V),
+                     (near.frequency_Hz, 2500.0, 0.0)}
     # the other mass cannot be run by the node: left out; the rest costs what the plan said (+ the final rest)
-    total = sine.duration_s + offset.duration_s + step.duration_s + static.duration_s + 1.0
+    total = sine.duration_s + offset.duration_s + step.duration_s + static.duration_s + near.duration_s + 1.0
     assert proto.duration_s() == pytest.approx(total, abs=1e-6)
     with pytest.raises(PlanningError, match="mass"):
         plan_protocol(_plan_of([other]), base)

@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from dea_ros.identify.planning import PlanLimits, _frequency_grid, candidate_records, record_settle
+from dea_ros.identify.planning import PlanLimits, candidate_records, record_settle
 from dea_ros.model import preset, settle_time, slowest_time_constant_s, static_equilibrium
 from dea_ros.solvers.inputs import SinePeriodic
 from dea_ros.solvers.integrate import simulate_held
@@ -122,7 +122,8 @@ def test_orbit_time_constants_reach_the_stable_orbit_where_one_sweep_runs_on_an_
     integrated from rest, and the planner holds that record longer than at rest."""
     p, u = F07, 1250.0
     limits = PlanLimits(offsets=True)
-    grid = [float(f) for f in _frequency_grid(p, limits) if u * 2 * math.pi * f <= limits.slew_rate_V_per_s]
+    offset_sines = [c for c in candidate_records(p, limits) if c.kind == "sine" and c.offset_V]
+    grid = sorted({c.frequency_Hz for c in offset_sines})
     sweep = frequency_sweep(p, SinePeriodic(u, 1.0, u), np.asarray(grid), n_harmonics=8, branch_switching=False,
                             realised=False)
     f = next(g for g in grid if abs(g - 11.64) < 0.02)
@@ -143,6 +144,5 @@ def test_orbit_time_constants_reach_the_stable_orbit_where_one_sweep_runs_on_an_
         return float(np.std(d[k:k + per]))
     err = [rms(t0) - rms(480.0) for t0 in (40.0, 100.0)]      # 480 s: 12 time constants
     assert -60.0 / math.log(err[1] / err[0]) == pytest.approx(tau, rel=0.1)
-    sine = next(c for c in candidate_records(p, limits) if c.kind == "sine" and c.offset_V
-                and abs(c.frequency_Hz - f) < 1e-9)
+    sine = next(c for c in offset_sines if abs(c.frequency_Hz - f) < 1e-9)
     assert sine.time_constant_s == pytest.approx(tau) and math.isfinite(sine.transient_left_m)
