@@ -106,16 +106,19 @@ def rig_sine_settle_s(params: MembraneParameters, frequencies_Hz: Sequence[float
 
 def rig_protocol(params: MembraneParameters, frequencies_Hz: Sequence[float], settle: RigSettleTimes | None = None,
                  amplitude_V: float = 2500.0, staircase_V: Sequence[float] = (0, 2000, 2100, 2200, 2300, 2400, 2500),
-                 step_V: float = 2200.0, step_hold_s: float = 4.0, sine_measure_s: float = 2.0) -> Protocol:
+                 step_V: float = 2200.0, step_hold_s: float = 4.0, sine_measure_s: float = 2.0,
+                 orbit_holds: bool = True) -> Protocol:
     """The identification protocol a user would run on ``params`` (paper's experiments, the module's settle
     times): staircase (1 s measured per level), rest, a step from 0 V, |U sin| at ``frequencies_Hz`` ascending
-    (``sine_measure_s`` measured, two periods at least)."""
+    (``sine_measure_s`` measured, two periods at least). ``orbit_holds=False``: every sine held
+    ``settle.sine_settle_s`` (the rule before session 22: a record near a fold may be measured settling)."""
     s = settle or rig_settle_times(params, amplitude_V)
     freqs = sorted(float(f) for f in frequencies_Hz)
     # a frequency with fewer than 1.5 periods in sine_measure_s gets two periods (its own segment): one period
     # is cut below a period by the extraction's guard at the window's end
     slow = [f for f in freqs if f * sine_measure_s < 1.5]
-    settle_s = rig_sine_settle_s(params, freqs, s, amplitude_V)
+    settle_s = (rig_sine_settle_s(params, freqs, s, amplitude_V) if orbit_holds
+                else dict.fromkeys(freqs, s.sine_settle_s))
     sines: list = []
     for f in freqs:             # ascending; consecutive frequencies with the same hold share a segment
         measure = 2.0 / min(slow) if f in slow else float(sine_measure_s)

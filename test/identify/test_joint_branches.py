@@ -6,6 +6,13 @@ noise and the ILD1320 quantisation, cut by the bag extraction) with 17 sine freq
 Freed at once from the two-stage result, the curvature let the fit follow a record near the fold onto
 another branch: chi-square 5272, 1845 of it on the 13 static points, k1 -1.29 % and sigma_h(1) -0.25 % at
 30 standard errors. The data come from the true membrane, never from the fit's model.
+
+These data hold every sine 12 time constants at rest (``rig_protocol(orbit_holds=False)``, the synthetic rig's
+rule before session 22): the 11.086 Hz record, next to the fold, is measured ~2.3 of its orbit's time constants
+(6.2 s) after it started, still settling. Held until its orbit has settled (74 s, the rule since), the joint
+refinement leaves the static points on this data set again and the two-stage result is reported with the
+intervals of the objective linearised there (last test): an open weakness of the refinement near a fold
+(docs/benchmarks.md, issue 21 session 22), not hidden by these tests.
 """
 from __future__ import annotations
 
@@ -32,8 +39,8 @@ SEVENTEEN_HZ = (0.2, 2.771, 5.543, 7.76, 8.3, 9.423, 9.839, 10.254, 10.67, 11.08
 
 @pytest.fixture(scope="module")
 def result():
-    exp, _rec = rig_experiments(F11, rig_protocol(F11, SEVENTEEN_HZ), seed=3, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
-                                quantisation_m=LASER_QUANTISATION_M)
+    exp, _rec = rig_experiments(F11, rig_protocol(F11, SEVENTEEN_HZ, orbit_holds=False), seed=3,
+                                other_masses_kg=DEFAULT_STATIC_MASSES_KG, quantisation_m=LASER_QUANTISATION_M)
     return identify(exp, evaluate_fit=False)
 
 
@@ -55,3 +62,16 @@ def test_the_intervals_hold(result):
         k = stats.names.index(name)
         assert abs(stats.values[k] - value) < 3 * stats.std_error[k], name
         assert abs(stats.values[k] / value - 1) < 0.01, name
+
+
+def test_with_the_fold_record_settled_the_refinement_is_refused_and_the_intervals_say_so():
+    exp, _rec = rig_experiments(F11, rig_protocol(F11, SEVENTEEN_HZ), seed=3, other_masses_kg=DEFAULT_STATIC_MASSES_KG,
+                                quantisation_m=LASER_QUANTISATION_M)
+    settled = identify(exp, evaluate_fit=False)
+    assert settled.joint is None
+    assert any("left the static points" in w and "two-stage result is reported" in w for w in settled.warnings)
+    stats = settled.statistics
+    for name, value in {"eps_r": F11.relative_permittivity, "k1_Pa": F11.k1_Pa, "eta1_Pa_s": F11.eta1_Pa_s,
+                        "eta2_Pa_s": F11.eta2_Pa_s}.items():
+        k = stats.names.index(name)
+        assert stats.ci_low[k] <= value <= stats.ci_high[k], name       # what is reported still holds
