@@ -234,9 +234,9 @@ def one_reach(p, f_r: float, seed: int) -> dict:
     fit = first_fit_from_result(first)
     cases = {"node's plan": (second.plan.widths_after, second.plan.correlation_after)}
     masses = dataclasses.replace(second.limits, other_masses_kg=tuple(m for m in DEFAULT_STATIC_MASSES_KG if m > 0))
+    scale = fit.scale()
     for prefix, limits in (("", second.limits), ("other masses: ", masses)):
         info, _notes = candidate_information(fit, candidate_records(fit.parameters, limits), limits)
-        scale = fit.scale()
         every = fit.information + 100.0 * sum(g for _c, g in info) / np.outer(scale, scale)
         only = plan_experiments(fit, budget, limits, targets=(S2,), information=info)
         cases[prefix + "curvature only"] = (only.widths_after, only.correlation_after)

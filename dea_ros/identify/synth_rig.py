@@ -99,9 +99,9 @@ def rig_sine_settle_s(params: MembraneParameters, frequencies_Hz: Sequence[float
     where none is stable, the rest's hold: such a record does not settle on an orbit)."""
     freqs = [float(f) for f in frequencies_Hz]
     orbit = orbit_time_constants(params, SinePeriodic(amplitude_V, 1.0), freqs, stable_only=True) if freqs else {}
-    slowest = {f: orbit.get(round(f, 3), 0.0) for f in freqs}     # inf: no stable orbit (the rest's hold then)
-    return {f: max(settle.sine_settle_s, settle.factor * tau if math.isfinite(tau) else 0.0)
-            for f, tau in slowest.items()}
+    taus = {f: orbit.get(round(f, 3), 0.0) for f in freqs}
+    return {f: max(settle.sine_settle_s, settle.factor * tau) if math.isfinite(tau) else settle.sine_settle_s
+            for f, tau in taus.items()}       # inf: no stable orbit there (the rest's hold)
 
 
 def rig_protocol(params: MembraneParameters, frequencies_Hz: Sequence[float], settle: RigSettleTimes | None = None,

@@ -237,7 +237,7 @@ def orbit_time_constants(params: MembraneParameters, periodic_input: PeriodicInp
     try:
         sweep = frequency_sweep(params, periodic_input, np.asarray(freqs, float), n_harmonics=8,
                                 branch_switching=False, realised=False)
-    except (DeaRosError, ArithmeticError, ValueError, np.linalg.LinAlgError):
+    except (DeaRosError, ArithmeticError, ValueError, np.linalg.LinAlgError):   # not a ValueError on numpy 1.21
         sweep = None
     unstable: set = set()
     for pt in sweep.points if sweep is not None else ():
