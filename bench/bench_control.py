@@ -353,13 +353,10 @@ def mock_rig(args, params_file, levels, mid):
 
     from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS
     from dea_ros.cli.rig import RigProcesses
-
-    import socket
+    from dea_ros.sim import free_udp_port
 
     ns = "/dea_bench"
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:   # a free UDP port for the mock amplifier
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = free_udp_port()   # for the mock amplifier
     rig = RigProcesses(namespace=ns, quiet=True)
     rig.start("mock_hardware_node", {
         "params_file": args.truth, "amplifier_port": port, "noise_m": 0.0, "sample_rate_hz": 1000.0,

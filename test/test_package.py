@@ -27,7 +27,6 @@ import re
 import shutil
 import signal
 import site
-import socket
 import subprocess
 import sys
 import time
@@ -151,10 +150,11 @@ def imported_dea_ros_files(log: str) -> set:
     return files
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def free_udp_port(install: Path) -> int:
+    """The installed package's ``dea_ros.sim.free_udp_port`` (a port no ephemeral bind takes meanwhile)."""
+    out = subprocess.run([sys.executable, "-S", "-c", "from dea_ros.sim import free_udp_port; print(free_udp_port())"],
+                         env=isolated_env(install), capture_output=True, text=True, check=True)
+    return int(out.stdout.strip())
 
 
 # ---------------------------------------------------------------------------- the rig from the install
@@ -170,7 +170,7 @@ class InstalledRig:
         self.work = work
         self.env = isolated_env(install)
         self.config = install / "share" / "dea_ros" / "config"
-        port = free_udp_port()
+        port = free_udp_port(install)
         laser = work / "laser_pty"
         #: what differs from the installed configs, as a launch file would pass it (a second params file)
         self.overrides = {

@@ -20,26 +20,24 @@ On a lab PC with ROS 2 the launch files in ``launch/`` do the same.
 """
 from __future__ import annotations
 
+import collections
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
+from ..sim import free_udp_port
 from .progress import ProgressLine, ProtocolProgress, identification_text, parse_progress
 from .rig_check import register as register_check
 
 __all__ = ["register", "RigProcesses", "start_rig", "DEFAULT_START_DELAYS_S"]
 
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+#: Lines of each node's output kept to explain an exit (:meth:`RigProcesses.check_alive`).
+LAST_LINES_KEPT = 25
 
 
 def _ros_args(params: dict) -> list[str]:
@@ -60,6 +58,8 @@ class RigProcesses:
         self.log_dir = log_dir
         self.on_line = on_line  # on_line(node, line) -> True when it showed the line itself
         self.procs: dict[str, subprocess.Popen] = {}
+        self.last_lines: dict[str, collections.deque] = {}   # each node's latest output, for check_alive
+        self.pumps: dict[str, threading.Thread] = {}          # each node's output reader
         self.env = dict(os.environ)
         self.env.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
         self.env["PYTHONUNBUFFERED"] = "1"
@@ -70,10 +70,12 @@ class RigProcesses:
         proc = subprocess.Popen(cmd, env=self.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                 start_new_session=True)
         self.procs[node] = proc
+        tail = self.last_lines[node] = collections.deque(maxlen=LAST_LINES_KEPT)
         log = open(self.log_dir / f"{node}.log", "w") if self.log_dir else None  # noqa: SIM115
 
         def pump():
             for line in proc.stdout:
+                tail.append(line.rstrip())
                 if log:
                     log.write(line)
                     log.flush()
@@ -84,7 +86,8 @@ class RigProcesses:
             if log:
                 log.close()
 
-        threading.Thread(target=pump, daemon=True).start()
+        self.pumps[node] = threading.Thread(target=pump, daemon=True)
+        self.pumps[node].start()
         return proc
 
     def stop(self, timeout_s: float = 10.0) -> None:
@@ -100,9 +103,14 @@ class RigProcesses:
                     proc.wait()
 
     def check_alive(self) -> str | None:
+        """``None`` while every node but identifier_node runs; else which exited, its exit code and the
+        last lines it printed (its reason, also when ``quiet`` kept them off the screen)."""
         for name, proc in self.procs.items():
             if proc.poll() is not None and name != "identifier_node":
-                return f"{name} exited with code {proc.returncode}"
+                self.pumps[name].join(timeout=1.0)   # until it has read all the node printed
+                lines = list(self.last_lines.get(name, ()))
+                said = ("; its last lines:\n  " + "\n  ".join(lines)) if lines else "; it printed nothing"
+                return f"{name} exited with code {proc.returncode}{said}"
         return None
 
 
@@ -132,7 +140,7 @@ def start_rig(rig: RigProcesses, membrane: str, sim_time: bool, speed: float, la
     call (default :data:`DEFAULT_START_DELAYS_S`), in the order of their delays: any order must work,
     as on a lab PC where processes start when they start (a sensor that streamed unread meanwhile included).
     ``max_ticks_per_clock``: the mock rig's, in simulated time (1: one /clock message per tick)."""
-    port = _free_udp_port()
+    port = free_udp_port()
     mock = {"params_file": true_params or membrane, "amplifier_port": port, "noise_m": noise_m,
             "sample_rate_hz": laser_rate_hz}
     link = f"/tmp/dea_ros_mock_laser_{os.getpid()}"

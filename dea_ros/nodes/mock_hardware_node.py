@@ -473,11 +473,13 @@ class MockHardwareNode(Node):
         return "paused" if self.paused else "lockstep"
 
     def shutdown_safely(self) -> None:
-        """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent."""
-        if self.emulator is not None:
+        """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent, and safe on
+        a node whose start-up was refused part-way (rclpy's context destroys it: the refusal must stay the
+        last thing the user reads)."""
+        if getattr(self, "emulator", None) is not None:
             self.emulator.stop()
             self.emulator = None
-        if self.receiver.is_open:
+        if getattr(self, "receiver", None) is not None and self.receiver.is_open:
             if self.publish_clock:
                 with self.tick_lock:  # not in the middle of the socket thread's tick
                     self.receiver.close()

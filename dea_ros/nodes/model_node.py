@@ -216,7 +216,8 @@ class ModelNode(Node):
         return resp
 
     def destroy_node(self):
-        self.health.close()          # the window fit's helper thread or worker process
+        if hasattr(self, "health"):  # not on a node whose start-up was refused part-way
+            self.health.close()      # the window fit's helper thread or worker process
         return super().destroy_node()
 
     def publish_diagnostics(self) -> None:

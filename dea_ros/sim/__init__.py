@@ -16,7 +16,7 @@ One of each::
 
 The faults tests inject (garbage, corrupted frames, silence, wrong replies) are test doubles in test/fakes/.
 """
-from .amplifier_receiver import MockAmplifierReceiver, ReceivedVoltage
+from .amplifier_receiver import MockAmplifierReceiver, ReceivedVoltage, free_udp_port
 from .ild1320_device import DisplacementSource, ILD1320Device
 from .ild1320_emulator import DEFAULT_SYMLINK_PATH, ILD1320Emulator
 from .mock_sensor import MockDisplacementSensor
@@ -25,5 +25,6 @@ from .rig_simulator import LaserSampler, RigSimulator
 
 __all__ = [
     "RigPlant", "LASER_QUANTISATION_M", "RigSimulator", "LaserSampler", "MockAmplifierReceiver", "ReceivedVoltage",
+    "free_udp_port",
     "ILD1320Device", "DisplacementSource", "ILD1320Emulator", "DEFAULT_SYMLINK_PATH", "MockDisplacementSensor",
 ]

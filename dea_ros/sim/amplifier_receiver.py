@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import random
 import select
 import socket
 import time
@@ -18,7 +19,31 @@ from typing import Any, Callable
 from ..errors import AmplifierBackendError
 from ..hardware.amplifier.udp import DATAGRAM_SIZE, decode_voltage_datagram
 
-__all__ = ["ReceivedVoltage", "MockAmplifierReceiver"]
+__all__ = ["ReceivedVoltage", "MockAmplifierReceiver", "free_udp_port"]
+
+#: Where :func:`free_udp_port` looks: below DDS's ports (7400 + 250 x domain id and up; Fast DDS's
+#: participants also take 7000 + n) and below every kernel's ephemeral range (Linux: 32768-60999), so
+#: that no process's ``bind(0)`` -- every DDS participant binds two or three -- can take the port
+#: between the check and the receiver's bind.
+FREE_PORT_RANGE = (4000, 6900)
+
+
+def free_udp_port(host: str = "127.0.0.1", attempts: int = 200) -> int:
+    """A UDP port on ``host`` free now, for a receiver another process will bind a moment later (the
+    amplifier's port of ``dea-ros rig``: both the mock and amplifier_node must know it before either
+    starts). Drawn at random from :data:`FREE_PORT_RANGE`, where no ephemeral bind lands: a port from
+    ``bind(0)``, closed again, is anybody's next ephemeral port until the receiver binds it."""
+    rng = random.SystemRandom()
+    for _ in range(attempts):
+        port = rng.randrange(*FREE_PORT_RANGE)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+            try:
+                probe.bind((host, port))
+            except OSError:
+                continue
+            return port
+    raise AmplifierBackendError(f"free_udp_port: no free UDP port on {host} in {FREE_PORT_RANGE} after "
+                                f"{attempts} tries; pass amplifier_port explicitly")
 
 
 @dataclass(frozen=True)

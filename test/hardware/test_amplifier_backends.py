@@ -30,6 +30,7 @@ from dea_ros.hardware.amplifier.udp import (
     encode_voltage_datagram,
 )
 from dea_ros.hardware.amplifier.uldaq import UldaqAmplifierBackend, query_uldaq_board
+from dea_ros.sim import amplifier_receiver, free_udp_port
 from dea_ros.sim.amplifier_receiver import MockAmplifierReceiver
 from fakes import load_fake
 
@@ -681,3 +682,22 @@ class TestAmplifierConfig:
 
         with pytest.raises(ValueError, match=message):
             amplifier_config_from_parameters(values)
+
+
+def test_free_udp_port_is_bindable_and_outside_the_ephemeral_range(monkeypatch):
+    """``dea-ros rig`` picks the amplifier's port before the mock binds it: a port from bind(0) could be
+    any process's next ephemeral port meanwhile (every DDS participant binds some), so the pick comes
+    from below the kernel's ephemeral range, and a port in use is never returned."""
+    low_ephemeral = int(open("/proc/sys/net/ipv4/ip_local_port_range").read().split()[0])
+    ports = {free_udp_port() for _ in range(20)}
+    assert all(amplifier_receiver.FREE_PORT_RANGE[0] <= p < min(low_ephemeral, 7000) for p in ports), ports
+    receiver = MockAmplifierReceiver(port=ports.pop())
+    try:
+        held = receiver.port
+        monkeypatch.setattr(amplifier_receiver, "FREE_PORT_RANGE", (held, held + 1))
+        with pytest.raises(AmplifierBackendError, match="no free UDP port.*pass amplifier_port"):
+            free_udp_port(attempts=5)
+        monkeypatch.setattr(amplifier_receiver, "FREE_PORT_RANGE", (held, held + 2))
+        assert free_udp_port() == held + 1   # never the held one
+    finally:
+        receiver.close()

@@ -6,7 +6,6 @@ listens. The delay from a laser sample to the voltage the amplifier applies must
 command, and equal to what the controller's ``loop_delay_s`` models.
 """
 import os
-import socket
 import time
 
 import numpy as np
@@ -22,17 +21,12 @@ from dea_ros.control import ModelInverse, loop_delays
 from dea_ros.model import config_dir, load_parameters
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, stamp_to_s
 from dea_ros.cli.rig import RigProcesses
+from dea_ros.sim import free_udp_port
 
 TRUTH = config_dir() / "rig" / "mock_membrane.yaml"
 U_MAX = 0.9 * 100e6 * 35e-6
 TICK_S = 1e-3
 SLEW_V_PER_S = 100000.0
-
-
-def free_udp_port():
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def matched_delays(commands, applied, t_set):

@@ -1,5 +1,4 @@
 """The rig on mock hardware over real rclpy: amplifier -> mock membrane -> displacement vs model."""
-import socket
 import time
 
 import numpy as np
@@ -12,16 +11,11 @@ from sensor_msgs.msg import BatteryState, Range
 from std_msgs.msg import Float64
 
 from dea_ros.model import preset, static_equilibrium
+from dea_ros.sim import free_udp_port
 from dea_ros.nodes.amplifier_node import AmplifierNode
 from dea_ros.nodes.common import COMMAND_QOS, SENSOR_QOS, stamp_to_s
 from dea_ros.nodes.mock_hardware_node import MockHardwareNode
 from dea_ros.nodes.model_node import ModelNode
-
-
-def free_udp_port():
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 #: laser, amplifier and model rate: 200 Hz keeps four nodes on one executor up to rate on a loaded

@@ -1,11 +1,14 @@
 """Issue 20: `dea-ros rig up` with staggered node starts delivers displacement (two fixed staggerings;
 the 20-run measurement with random 0-30 s delays is bench/bench_rig_starts.py)."""
 import importlib.util
+import os
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("rclpy")
+
+from dea_ros.cli.rig import RigProcesses  # noqa: E402 - needs rclpy
 
 _SPEC = importlib.util.spec_from_file_location(
     "bench_rig_starts", Path(__file__).resolve().parents[2] / "bench" / "bench_rig_starts.py")
@@ -23,3 +26,30 @@ def test_staggered_rig_starts_deliver_displacement(delays):
     result = bench.staggered_start(delays, timeout_s=40.0)
     assert result["problem"] is None, result
     assert result["seconds_to_displacement"] is not None, result
+
+
+
+@pytest.mark.parametrize("node, params, reason", [
+    ("mock_hardware_node", {"params_file": "A2", "laser_output": "carrier_pigeon"},
+     "mock_hardware_node: parameter 'laser_output': topic, emulator or both, got 'carrier_pigeon'"),
+    ("mock_hardware_node", {"params_file": "/nonexistent/membrane.yaml"},
+     "mock_hardware_node: parameter 'params_file': /nonexistent/membrane.yaml: no such parameters file"),
+    ("model_node", {"params_file": "/nonexistent/membrane.yaml"},
+     "model_node: parameter 'params_file': /nonexistent/membrane.yaml: no such parameters file"),
+    ("laser_sensor_node", {"backend": "carrier_pigeon"},
+     "laser_sensor_node: parameter 'backend': ild1320 or mock, got 'carrier_pigeon'"),
+])
+def test_a_refused_start_is_reported_with_its_reason_even_when_quiet(node, params, reason):
+    """A rig node that refuses its parameters exits with its reason as the last line it prints (a node
+    refused part-way must not end in an AttributeError from its own clean-up), and the rig's report
+    names the node, its exit code and that line (`dea-ros rig up` and the demo keep node output off the
+    screen)."""
+    rig = RigProcesses(namespace=f"/refused_{os.getpid()}", quiet=True)
+    try:
+        rig.start(node, params).wait(timeout=60.0)
+        problem = rig.check_alive()
+    finally:
+        rig.stop()
+    assert problem is not None and problem.startswith(f"{node} exited with code 1; its last lines:"), problem
+    assert problem.splitlines()[-1].strip().startswith(reason), problem
+    assert "Traceback" not in problem, problem
