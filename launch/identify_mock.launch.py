@@ -64,7 +64,7 @@ def generate_launch_description():
         DeclareLaunchArgument("output_dir", default_value="runs", description="folder of the runs"),
         DeclareLaunchArgument("run_name", default_value="", description="folder of this run (empty: date)"),
         DeclareLaunchArgument("namespace", default_value="dea", description="namespace of the rig"),
-        DeclareLaunchArgument("amplifier_port", default_value="47650", description="UDP port of the mock amplifier"),
+        DeclareLaunchArgument("amplifier_port", default_value="5765", description="UDP port of the mock amplifier"),
         Node(package="dea_ros", executable="mock_hardware_node", name="mock_hardware_node", namespace=ns,
              output="screen",
              parameters=[os.path.join(config, "mock_hardware.yaml"),

@@ -35,7 +35,7 @@ def generate_launch_description():
         DeclareLaunchArgument("namespace", default_value="dea", description="namespace of the rig"),
         DeclareLaunchArgument("laser_port", default_value="/tmp/dea_ros_mock_laser",
                               description="symlink of the emulated ILD1320's serial port"),
-        DeclareLaunchArgument("amplifier_port", default_value="47650", description="UDP port of the mock amplifier"),
+        DeclareLaunchArgument("amplifier_port", default_value="5765", description="UDP port of the mock amplifier"),
         Node(package="dea_ros", executable="mock_hardware_node", name="mock_hardware_node", namespace=ns,
              output="screen",
              parameters=[os.path.join(config, "mock_hardware.yaml"),

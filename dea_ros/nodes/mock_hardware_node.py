@@ -79,6 +79,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Range
 from std_msgs.msg import Header
 
+from ..hardware.amplifier.udp import DEFAULT_MOCK_PORT
 from ..model import MembraneParameters, ParameterError, load_parameters
 from ..sim.amplifier_receiver import MockAmplifierReceiver
 from ..sim.ild1320_emulator import ILD1320Emulator
@@ -155,7 +156,7 @@ class MockHardwareNode(Node):
                                       "symlink of the emulated sensor's serial port")
         self.laser_standoff_m = declare_float(self, "laser_standoff_m", 2e-3,
                                               "distance reading of the flat membrane (tare value), m", 0.0, 0.01)
-        self.amplifier_port = declare_int(self, "amplifier_port", 47650,
+        self.amplifier_port = declare_int(self, "amplifier_port", DEFAULT_MOCK_PORT,
                                           "UDP port for the amplifier mock backend (0: any free port)", 0, 65535)
         self.publish_clock = declare_bool(self, "publish_clock", False,
                                           "be the clock master: publish /clock (simulated time)")

@@ -28,7 +28,6 @@ def test_staggered_rig_starts_deliver_displacement(delays):
     assert result["seconds_to_displacement"] is not None, result
 
 
-
 @pytest.mark.parametrize("node, params, reason", [
     ("mock_hardware_node", {"params_file": "A2", "laser_output": "carrier_pigeon"},
      "mock_hardware_node: parameter 'laser_output': topic, emulator or both, got 'carrier_pigeon'"),

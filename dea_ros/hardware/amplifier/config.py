@@ -14,6 +14,7 @@ from typing import Any, Mapping
 
 from ...model.parameters import load_parameters
 from .limits import SafetyLimits
+from .udp import DEFAULT_MOCK_PORT
 from .rig_description import AmplifierRigExpectation, describe_amplifier_rig
 
 __all__ = ["AMPLIFIER_PARAMETERS", "BACKENDS", "AmplifierConfig", "amplifier_config_from_parameters"]
@@ -35,7 +36,7 @@ AMPLIFIER_PARAMETERS: dict[str, tuple[Any, str]] = {
     "max_command_batch": (50, "simulated time only: most samples of one voltage_cmd_batch (one applied per "
                               "update, each through every limit; the batch may not span more than "
                               "watchdog_timeout_s; 0: batches refused)"),
-    "mock_port": (47650, "UDP port of mock_hardware_node (backend mock)"),
+    "mock_port": (DEFAULT_MOCK_PORT, "UDP port of mock_hardware_node (backend mock)"),
     "uldaq_unique_id": ("", "DAQ unique id (empty: the first USB device)"),
     "uldaq_channel": (0, "analog output channel wired to the amplifier input"),
     "uldaq_range": ("auto", "analog output range: auto (the smallest the board offers that covers "

@@ -28,6 +28,7 @@ from .base import AmplifierBackend
 __all__ = [
     "DATAGRAM_MAGIC",
     "DATAGRAM_SIZE",
+    "DEFAULT_MOCK_PORT",
     "VoltageDatagram",
     "encode_voltage_datagram",
     "decode_voltage_datagram",
@@ -37,6 +38,11 @@ __all__ = [
 DATAGRAM_MAGIC = b"DEAV"
 _DATAGRAM = struct.Struct("!4sIQdd")
 DATAGRAM_SIZE = _DATAGRAM.size
+#: The mock amplifier's UDP port (amplifier_node ``mock_port``, mock_hardware_node ``amplifier_port``, the
+#: launch files' ``amplifier_port``): below every kernel's ephemeral range (Linux 32768-60999) and DDS's
+#: ports, so no process's ephemeral socket -- every DDS participant binds some -- can hold it when the mock
+#: starts (47650 until session 23 was inside it).
+DEFAULT_MOCK_PORT = 5765
 
 
 @dataclass(frozen=True)
