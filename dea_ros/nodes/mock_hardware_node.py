@@ -79,6 +79,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Range
 from std_msgs.msg import Header
 
+from ..errors import AmplifierBackendError
 from ..hardware.amplifier.udp import DEFAULT_MOCK_PORT
 from ..model import MembraneParameters, ParameterError, load_parameters
 from ..sim.amplifier_receiver import MockAmplifierReceiver
@@ -107,7 +108,10 @@ class MockHardwareNode(Node):
         super().__init__("mock_hardware_node", **kwargs)
         self._declare_parameters()
         params = self._membrane()
-        self.receiver = MockAmplifierReceiver(port=self.amplifier_port, deadman_timeout_s=self.amplifier_deadman_s)
+        try:
+            self.receiver = MockAmplifierReceiver(port=self.amplifier_port, deadman_timeout_s=self.amplifier_deadman_s)
+        except AmplifierBackendError as exc:   # e.g. the port is in use: say which parameter, not a traceback
+            raise SystemExit(f"mock_hardware_node: parameter 'amplifier_port': {exc}") from None
         self.tick_index = 0                      # /clock ticks published (simulated time)
         self.amp_time_s: float | None = None     # simulated send time of the latest amplifier datagram
         self.clock_time_s: float | None = None   # last /clock published
@@ -481,8 +485,9 @@ class MockHardwareNode(Node):
             self.emulator.stop()
             self.emulator = None
         if getattr(self, "receiver", None) is not None and self.receiver.is_open:
-            if self.publish_clock:
-                with self.tick_lock:  # not in the middle of the socket thread's tick
+            tick_lock = getattr(self, "tick_lock", None)   # simulated time, once the clock was set up
+            if tick_lock is not None:
+                with tick_lock:  # not in the middle of the socket thread's tick
                     self.receiver.close()
             else:
                 self.receiver.close()

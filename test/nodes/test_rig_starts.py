@@ -2,6 +2,7 @@
 the 20-run measurement with random 0-30 s delays is bench/bench_rig_starts.py)."""
 import importlib.util
 import os
+import socket
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from dea_ros.cli.rig import RigProcesses  # noqa: E402 - needs rclpy
+from dea_ros.sim import free_udp_port  # noqa: E402
 
 _SPEC = importlib.util.spec_from_file_location(
     "bench_rig_starts", Path(__file__).resolve().parents[2] / "bench" / "bench_rig_starts.py")
@@ -43,6 +45,23 @@ def test_a_refused_start_is_reported_with_its_reason_even_when_quiet(node, param
     refused part-way must not end in an AttributeError from its own clean-up), and the rig's report
     names the node, its exit code and that line (`dea-ros rig up` and the demo keep node output off the
     screen)."""
+    assert_refused(node, params, reason)
+
+
+def test_a_mock_whose_amplifier_port_is_taken_names_the_parameter():
+    """The start-up failure stop 35's CI may have met: the amplifier's port held by another socket (in
+    simulated time, where the clock's lock exists only later). The mock names the parameter and the fix."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as holder:
+        holder.bind(("127.0.0.1", free_udp_port()))
+        port = holder.getsockname()[1]
+        assert_refused("mock_hardware_node",
+                       {"params_file": "A2", "amplifier_port": port, "publish_clock": True, "laser_output": "topic"},
+                       f"mock_hardware_node: parameter 'amplifier_port': MockAmplifierReceiver: cannot bind UDP "
+                       f"127.0.0.1:{port}")
+
+
+def assert_refused(node: str, params: dict, reason: str) -> None:
+    """``node`` started with ``params`` exits 1, the rig's report ends with ``reason``, no traceback."""
     rig = RigProcesses(namespace=f"/refused_{os.getpid()}", quiet=True)
     try:
         rig.start(node, params).wait(timeout=60.0)
