@@ -108,7 +108,7 @@ class RigProcesses:
         for name, proc in self.procs.items():
             if proc.poll() is not None and name != "identifier_node":
                 self.pumps[name].join(timeout=1.0)   # until it has read all the node printed
-                lines = list(self.last_lines.get(name, ()))
+                lines = list(self.last_lines[name])
                 said = ("; its last lines:\n  " + "\n  ".join(lines)) if lines else "; it printed nothing"
                 return f"{name} exited with code {proc.returncode}{said}"
         return None

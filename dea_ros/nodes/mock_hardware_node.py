@@ -104,6 +104,12 @@ __all__ = ["MockHardwareNode", "main"]
 class MockHardwareNode(Node):
     """The simulated rig as a node: parameters, topics, timers and ``/clock`` around :mod:`dea_ros.sim`."""
 
+    # what shutdown_safely releases, None until created: rclpy's context also destroys a node whose
+    # start-up was refused part-way, and the refusal must stay the last thing the user reads
+    receiver: MockAmplifierReceiver | None = None
+    emulator: ILD1320Emulator | None = None
+    tick_lock: threading.Lock | None = None   # simulated time only
+
     def __init__(self, **kwargs):
         super().__init__("mock_hardware_node", **kwargs)
         self._declare_parameters()
@@ -479,15 +485,13 @@ class MockHardwareNode(Node):
 
     def shutdown_safely(self) -> None:
         """Stop the serial emulator (removes its symlink) and release the UDP port; idempotent, and safe on
-        a node whose start-up was refused part-way (rclpy's context destroys it: the refusal must stay the
-        last thing the user reads)."""
-        if getattr(self, "emulator", None) is not None:
+        a node whose start-up was refused part-way."""
+        if self.emulator is not None:
             self.emulator.stop()
             self.emulator = None
-        if getattr(self, "receiver", None) is not None and self.receiver.is_open:
-            tick_lock = getattr(self, "tick_lock", None)   # simulated time, once the clock was set up
-            if tick_lock is not None:
-                with tick_lock:  # not in the middle of the socket thread's tick
+        if self.receiver is not None and self.receiver.is_open:
+            if self.tick_lock is not None:
+                with self.tick_lock:  # not in the middle of the socket thread's tick
                     self.receiver.close()
             else:
                 self.receiver.close()

@@ -76,6 +76,8 @@ __all__ = ["ModelNode", "main"]
 
 
 class ModelNode(Node):
+    health = None   # created in __init__; None on a node whose start-up was refused before (destroy_node)
+
     def __init__(self, **kwargs):
         super().__init__("model_node", **kwargs)
         self.params_file = declare_str(self, "params_file", "A2",
@@ -216,7 +218,7 @@ class ModelNode(Node):
         return resp
 
     def destroy_node(self):
-        if hasattr(self, "health"):  # not on a node whose start-up was refused part-way
+        if self.health is not None:
             self.health.close()      # the window fit's helper thread or worker process
         return super().destroy_node()
 
